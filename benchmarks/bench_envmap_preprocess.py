@@ -1,0 +1,343 @@
+"""Preprocessing throughput: world env map + camera pose -> the model's two 256x256 lighting maps.
+
+Measured side by side in one process, repetitions interleaved (the scenario order rotates every
+repetition), so that drifting load on a shared machine hits every variant alike:
+
+(a) "theirs": the authors' data loop, re-created here from reference section 4 (steps 1-7): one
+    512x256 map at a time, directions recomputed per call with numpy trig, rotation at full
+    resolution with torch `grid_sample(align_corners=True, padding_mode="zeros")`, clip^(1/2.2) and
+    log1p(10E)/max, uint8 truncation, PIL bilinear resize to 256x256. "theirs+png" adds their PNG
+    round trip (write both maps as PNG, read them back, map to [-1, 1]).
+(b) "compat": `gaffer_envmap.encode_lighting(..., compat="neural-gaffer")`, batches of 1 and 32.
+(c) "default": `encode_lighting(..., compat="default")` (area filter), batches of 1, 32, 256 and
+    supersample 1 and 2.
+
+torch uses every usable core (`--threads` to change). Results: JSON + PNG under benchmarks/results/
+(see benchmarks/README.md). With CUDA present, the default and compat pipelines are also timed on the
+GPU; without it the JSON says `"cuda": "unavailable"`.
+
+Run: `python benchmarks/bench_envmap_preprocess.py [--quick] [--update-baseline]`.
+"""
+
+import io
+import math
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+
+import _common as common
+import gaffer_envmap as ge
+
+NAME = "envmap_preprocess"
+SIZE = 256
+SRC_HEIGHT = 256  # the authors pre-resized training maps to 512x256 (reference section 4.8)
+TARGET_DEFAULT_RATIO = 30.0  # issue: default mode >= 30x their maps/s on the 2-core CPU
+TARGET_COMPAT_RATIO = 1.0  # issue: compat mode no slower than theirs
+TARGET_GPU_MAPS_PER_S = 100_000.0
+
+Pipeline = Literal["theirs", "theirs+png", "compat", "default"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class Scenario:
+    """One measured variant."""
+
+    pipeline: Pipeline
+    batch_size: int = 1
+    supersample: int = 1
+    device: str = "cpu"
+
+    @property
+    def name(self) -> str:
+        dev = "" if self.device == "cpu" else f" [{self.device}]"
+        if self.pipeline in ("theirs", "theirs+png"):
+            return f"{self.pipeline}{dev}"
+        if self.pipeline == "compat":
+            return f"ours compat b{self.batch_size}{dev}"
+        return f"ours default b{self.batch_size} ss{self.supersample}{dev}"
+
+
+# ---------------------------------------------------------------------------------------------
+# (a) The authors' pipeline, written out as their data loop runs it (reference section 4).
+# ---------------------------------------------------------------------------------------------
+_A = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def theirs_encode(env: np.ndarray, w2c: np.ndarray, size: int = SIZE) -> tuple[np.ndarray, np.ndarray]:
+    """One `[He, We, 3]` float32 world map and one 3x4 (or 3x3) Blender w2c -> uint8 LDR, HDR `[size, size, 3]`."""
+    he, we, _ = env.shape
+    # Step 1: output direction grid, recomputed on every call (their code caches nothing).
+    theta = np.pi / 2 - (np.arange(he) + 0.5) * np.pi / he  # elevation, +pi/2 at the top row
+    phi = np.pi - (np.arange(we) + 0.5) * 2 * np.pi / we  # azimuth, +pi at the left column
+    th, ph = np.meshgrid(theta, phi, indexing="ij")
+    d_local = np.stack([np.cos(ph) * np.cos(th), np.sin(ph) * np.cos(th), np.sin(th)], -1)
+    # Step 2: d_world = d_local (A R), row vectors.
+    d = d_local @ (_A @ np.asarray(w2c, np.float64)[:3, :3])
+    # Step 4 (their lookup): Blender equirect, z up.
+    th2 = np.arccos(np.clip(d[..., 2], -1.0, 1.0))
+    ph2 = np.arctan2(d[..., 1], d[..., 0])
+    grid = np.clip(np.stack([-ph2 / np.pi, 2 * th2 / np.pi - 1], -1), -(1 - 1e-7), 1 - 1e-7)
+    img = torch.from_numpy(env).permute(2, 0, 1)[None].float()
+    rotated = F.grid_sample(
+        img, torch.from_numpy(grid)[None].float(), mode="bilinear", padding_mode="zeros", align_corners=True
+    )[0].permute(1, 2, 0).numpy()
+    # Steps 5-6.
+    ldr = np.clip(rotated, 0, 1) ** (1 / 2.2)
+    log = np.log1p(10 * rotated)
+    hdr = np.clip(log / log.max(), 0, 1)
+    # Step 7: truncate to uint8, then squash 512x256 -> 256x256 with PIL bilinear.
+    out = []
+    for m in (ldr, hdr):
+        u8 = np.floor(m * 255).astype(np.uint8)
+        out.append(np.asarray(Image.fromarray(u8).resize((size, size), Image.BILINEAR)))
+    return out[0], out[1]
+
+
+def theirs_png_round_trip(ldr: np.ndarray, hdr: np.ndarray, folder: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Their storage step: write both maps as PNG, read them back at load time, map to [-1, 1]."""
+    back = []
+    for tag, img in (("LDR", ldr), ("HDR_normalized", hdr)):
+        path = folder / f"{tag}.png"
+        Image.fromarray(img).save(path)
+        with Image.open(path) as im:
+            back.append(np.asarray(im.convert("RGB"), np.float32) / 127.5 - 1.0)
+    return back[0], back[1]
+
+
+# ---------------------------------------------------------------------------------------------
+# Runners
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class Data:
+    maps: list[np.ndarray]  # [He, We, 3] float32, Blender convention
+    rotations: np.ndarray  # [P, 3, 3] world -> Blender camera
+    tmp: Path
+
+
+def make_runner(s: Scenario, data: Data) -> Callable[[], object]:
+    """A zero-argument callable that processes `s.batch_size` maps."""
+    n_maps, n_rot = len(data.maps), len(data.rotations)
+    if s.pipeline in ("theirs", "theirs+png"):
+        counter = iter(range(10**12))
+
+        def run_theirs() -> object:
+            i = next(counter)
+            ldr, hdr = theirs_encode(data.maps[i % n_maps], data.rotations[i % n_rot])
+            if s.pipeline == "theirs+png":
+                return theirs_png_round_trip(ldr, hdr, data.tmp)
+            return ldr, hdr
+
+        return run_theirs
+    b = s.batch_size
+    src = torch.from_numpy(np.stack([data.maps[i % n_maps] for i in range(b)])).to(s.device)
+    rot = data.rotations[np.arange(b) % n_rot]
+    if s.pipeline == "compat":
+        return lambda: ge.encode_lighting(src, rot, size=SIZE, compat="neural-gaffer", device=s.device)
+    return lambda: ge.encode_lighting(
+        src, rot, size=SIZE, compat="default", supersample=s.supersample, device=s.device
+    )
+
+
+def fidelity(data: Data, count: int) -> dict[str, Any]:
+    """How closely (a) matches `compat="neural-gaffer"`: differing uint8 values, largest difference."""
+    diff_values, total, worst = 0, 0, 0
+    for i in range(count):
+        env, r = data.maps[i % len(data.maps)], data.rotations[i % len(data.rotations)]
+        theirs = theirs_encode(env, r)
+        ours = ge.encode_lighting(env, r, size=SIZE, compat="neural-gaffer").to_uint8()
+        for a, b in zip(theirs, (ours[0][0], ours[1][0])):
+            d = np.abs(a.astype(np.int16) - b.astype(np.int16))
+            diff_values += int((d > 0).sum())
+            total += d.size
+            worst = max(worst, int(d.max()))
+    return {
+        "maps_compared": count,
+        "uint8_values_compared": total,
+        "uint8_values_differing": diff_values,
+        "max_abs_difference_lsb": worst,
+    }
+
+
+def scenarios_for(quick: bool) -> list[Scenario]:
+    batches_default = (1, 32) if quick else (1, 32, 256)
+    out = [Scenario(pipeline="theirs"), Scenario(pipeline="theirs+png")]
+    out += [Scenario(pipeline="compat", batch_size=b) for b in (1, 32)]
+    out += [
+        Scenario(pipeline="default", batch_size=b, supersample=ss) for b in batches_default for ss in (1, 2)
+    ]
+    if torch.cuda.is_available():
+        out += [Scenario(pipeline="compat", batch_size=32, device="cuda")]
+        out += [
+            Scenario(pipeline="default", batch_size=b, supersample=ss, device="cuda")
+            for b in (32, 256, 1024)
+            for ss in (1, 2)
+        ]
+    return out
+
+
+def measure(scenarios: list[Scenario], data: Data, reps: int, min_rep_s: float) -> dict[str, list[float]]:
+    """maps/s per repetition for every scenario; repetitions interleaved, order rotated each time."""
+    runners = {s.name: make_runner(s, data) for s in scenarios}
+    syncs = {s.name: (torch.cuda.synchronize if s.device == "cuda" else None) for s in scenarios}
+    calls = {}
+    for s in scenarios:
+        calls[s.name] = common.calibrate(runners[s.name], min_rep_s, syncs[s.name])
+        common.log(f"  calibrated {s.name}: {calls[s.name]} call(s) per repetition")
+    rates: dict[str, list[float]] = {s.name: [] for s in scenarios}
+    for rep in range(reps):
+        k = rep % len(scenarios)
+        for s in scenarios[k:] + scenarios[:k]:
+            seconds = common.time_calls(runners[s.name], calls[s.name], syncs[s.name])
+            rates[s.name].append(calls[s.name] * s.batch_size / seconds)
+        common.log(f"  repetition {rep + 1}/{reps} done")
+    return rates, calls
+
+
+def plot(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"theirs": "#7f7f7f", "theirs+png": "#bdbdbd", "compat": "#1f77b4", "default": "#d62728"}
+    fig, ax = plt.subplots(figsize=(9.5, 0.42 * len(results) + 1.8))
+    names = [r["name"] for r in results][::-1]
+    med = np.array([r["maps_per_s"]["median"] for r in results][::-1])
+    lo = np.array([r["maps_per_s"]["min"] for r in results][::-1])
+    hi = np.array([r["maps_per_s"]["max"] for r in results][::-1])
+    y = np.arange(len(results))
+    ax.barh(y, med, color=[colors[r["pipeline"]] for r in results][::-1], height=0.7)
+    ax.errorbar(med, y, xerr=[med - lo, hi - med], fmt="none", ecolor="black", capsize=3, lw=1)
+    ax.set_yticks(y, names)
+    ax.set_xscale("log")
+    ax.set_xlabel("maps per second (median of interleaved repetitions; whiskers: min-max)")
+    theirs = next(r for r in results if r["pipeline"] == "theirs")["maps_per_s"]["median"]
+    ax.axvline(theirs, color="#555555", ls="--", lw=1)
+    ax.axvline(TARGET_DEFAULT_RATIO * theirs, color="#d62728", ls=":", lw=1.2)
+    ax.text(theirs, len(results) - 0.4, " theirs", color="#555555", va="bottom", fontsize=8)
+    ax.text(
+        TARGET_DEFAULT_RATIO * theirs, len(results) - 0.4, " target: 30x theirs", color="#d62728",
+        va="bottom", fontsize=8,
+    )
+    for yi, r in zip(y, results[::-1]):
+        if r["pipeline"] not in ("theirs",):
+            ax.text(hi[yi] * 1.08, yi, f"{r['ratio_vs_theirs']['median']:.2f}x", va="center", fontsize=8)
+    xmax = max(hi.max(), TARGET_DEFAULT_RATIO * theirs) * 3
+    ax.set_xlim(min(lo.min(), theirs) / 2, xmax)
+    ax.set_ylim(-0.6, len(results) + 0.2)
+    mode = " (--quick)" if quick else ""
+    ax.set_title(
+        f"Env-map preprocessing: 512x256 world map -> 256x256 LDR + HDR{mode}\n{common.short_device(meta)}",
+        fontsize=10,
+    )
+    ax.grid(axis="x", which="both", alpha=0.25)
+    fig.tight_layout()
+    return fig
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = common.parse_args(__doc__.splitlines()[0], argv)
+    threads = common.set_threads(args.threads)
+    meta = common.machine(threads)
+    reps, min_rep_s = (3, 0.15) if args.quick else (5, 0.5)
+    common.log(f"{NAME}: {meta['device']}, torch threads {threads}, quick={args.quick}")
+
+    rng = np.random.default_rng(args.seed)
+    maps = list(common.load_bundled_maps(SRC_HEIGHT).values())
+    rotations = common.random_rotations(256, rng)
+    with tempfile.TemporaryDirectory(prefix="gaffer-bench-") as tmp:
+        data = Data(maps=maps, rotations=rotations, tmp=Path(tmp))
+        fid = fidelity(data, 4 if args.quick else 16)
+        common.log(f"  fidelity of (a) vs compat: {fid}")
+        scenarios = scenarios_for(args.quick)
+        rates, calls = measure(scenarios, data, reps, min_rep_s)
+
+    theirs_rates = rates["theirs"]
+    results = []
+    for s in scenarios:
+        spread = common.Spread.of(rates[s.name])
+        # Paired ratio: repetition r of this variant against repetition r of theirs.
+        paired = [a / b for a, b in zip(rates[s.name], theirs_rates)]
+        results.append(
+            {
+                "name": s.name,
+                **asdict(s),
+                "calls_per_repetition": calls[s.name],
+                "maps_per_s": spread.to_dict(),
+                "maps_per_s_all": [round(x, 3) for x in rates[s.name]],
+                "ratio_vs_theirs": common.Spread.of(paired).to_dict(),
+            }
+        )
+
+    def ratio(pipeline: str) -> list[float]:
+        return [r["ratio_vs_theirs"]["median"] for r in results if r["pipeline"] == pipeline and r["device"] == "cpu"]
+
+    best_default = max(ratio("default"))
+    gpu_rates = [r["maps_per_s"]["median"] for r in results if r["device"] == "cuda"]
+    targets = {
+        "default_vs_theirs": {
+            "target": TARGET_DEFAULT_RATIO,
+            "best_measured": round(best_default, 3),
+            "met": best_default >= TARGET_DEFAULT_RATIO,
+        },
+        "compat_vs_theirs": {
+            "target": TARGET_COMPAT_RATIO,
+            "worst_measured": round(min(ratio("compat")), 3),
+            "met": min(ratio("compat")) >= TARGET_COMPAT_RATIO,
+        },
+        "gpu_maps_per_s": (
+            {"target": TARGET_GPU_MAPS_PER_S, "best_measured": round(max(gpu_rates), 1),
+             "met": max(gpu_rates) >= TARGET_GPU_MAPS_PER_S}
+            if gpu_rates
+            else {"target": TARGET_GPU_MAPS_PER_S, "measured": None, "note": "cuda: unavailable"}
+        ),
+    }
+    payload = {
+        "benchmark": NAME,
+        "quick": args.quick,
+        "config": {
+            "source": f"the {len(maps)} bundled HDRIs, conservatively resized to {2 * SRC_HEIGHT}x{SRC_HEIGHT}",
+            "output_size": SIZE,
+            "poses": "uniformly random rotations (Haar), one per map",
+            "repetitions": reps,
+            "min_seconds_per_repetition": min_rep_s,
+            "default_filter": "area",
+            "seed": args.seed,
+        },
+        "machine": meta,
+        "fidelity_theirs_vs_compat": fid,
+        "targets": targets,
+        "scenarios": results,
+    }
+    fig = plot(results, meta, args.quick)
+    written = common.write_results(NAME, payload, fig, args.update_baseline)
+
+    baseline = common.load_baseline(NAME)
+    base_rates = {r["name"]: r["maps_per_s"]["median"] for r in baseline["scenarios"]} if baseline else {}
+    print(f"\n{NAME} on {meta['device']} (torch {meta['torch']}, {threads} threads, {meta['cuda']} cuda)")
+    print(f"{'variant':34s} {'maps/s median':>14s} {'[min, max]':>22s} {'x theirs':>9s} {'baseline':>10s}")
+    for r in results:
+        mps = r["maps_per_s"]
+        base = base_rates.get(r["name"])
+        base_s = f"{base:10.1f}" if base else f"{'-':>10s}"
+        print(
+            f"{r['name']:34s} {mps['median']:14.1f} {f'[{mps['min']:.1f}, {mps['max']:.1f}]':>22s} "
+            f"{r['ratio_vs_theirs']['median']:9.2f} {base_s}"
+        )
+    print(f"targets: {targets}")
+    print(f"fidelity (a) vs compat: {fid}")
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

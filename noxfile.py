@@ -1,0 +1,111 @@
+"""Task runner for the gaffer monorepo: the only entry point for tests, lint, benchmarks, docs and demos.
+
+Every install goes through a package's own pyproject.toml and `-c constraints.txt` (numpy<2 for bpy,
+the local torch==2.13.0 CPU wheel). Run `python3 -m nox -l` to list sessions.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import nox
+
+nox.needs_version = ">=2024.3.2"
+nox.options.default_venv_backend = "virtualenv"
+nox.options.sessions = ["lint", "typecheck", "tests", "wheels"]
+nox.options.reuse_existing_virtualenvs = False
+
+ROOT = Path(__file__).parent
+CONSTRAINTS = ("-c", str(ROOT / "constraints.txt"))
+PACKAGES = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
+# What each package needs beside itself for its test suite (extras + the test dependency group).
+# Each package's `all` extra holds everything its own tests need beyond the core dependencies.
+TEST_SPECS = tuple(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}[all]"))
+TEST_TOOLS = ("pytest==9.2.0", "jaxtyping>=0.2.36", "beartype>=0.19", "scipy>=1.11", "bpy==5.0.1")
+
+
+def _install(session: nox.Session, *args: str) -> None:
+    session.install(*CONSTRAINTS, *args)
+
+
+@nox.session
+def tests(session: nox.Session) -> None:
+    """All packages' CPU tests plus cross-package tests (bpy renders included, GPU/weights excluded)."""
+    _install(session, "torch==2.13.0", "numpy==1.26.4")
+    _install(session, *TEST_SPECS, *TEST_TOOLS)
+    session.run("pytest", *session.posargs, env={"PYTHONHASHSEED": "0"})
+
+
+@nox.session
+def lint(session: nox.Session) -> None:
+    """ruff check + format check over the whole tree."""
+    session.install("ruff==0.14.5")
+    session.run("ruff", "check", ".")
+    session.run("ruff", "format", "--check", ".")
+
+
+@nox.session
+def typecheck(session: nox.Session) -> None:
+    """pyright over the packages that are built (list grows with them)."""
+    _install(session, "torch==2.13.0", "numpy==1.26.4")
+    _install(session, "-e", "packages/gaffer-envmap[hdr]", "pyright==1.1.408")
+    session.run("pyright", "packages/gaffer-envmap/src")
+
+
+@nox.session
+def wheels(session: nox.Session) -> None:
+    """Build each package's wheel; install and import it alone in a clean venv with only its declared deps."""
+    session.install("build>=1.2", "virtualenv>=20")
+    dist = Path(tempfile.mkdtemp(prefix="gaffer-dist-"))
+    for pkg in PACKAGES:
+        session.run("python", "-m", "build", "--wheel", "--outdir", str(dist), f"packages/{pkg}")
+    for pkg in PACKAGES:
+        module = pkg.replace("-", "_")
+        venv_dir = Path(tempfile.mkdtemp(prefix=f"venv-{pkg}-"))
+        session.run("python", "-m", "virtualenv", "-q", str(venv_dir))
+        py = str(venv_dir / "bin" / "python")
+        # torch first, pinned, so the resolver never reaches for a CUDA build (environment.md).
+        session.run(py, "-m", "pip", "install", "-q", *CONSTRAINTS, "torch==2.13.0", external=True)
+        session.run(
+            py, "-m", "pip", "install", "-q", *CONSTRAINTS, "--find-links", str(dist), pkg,
+            external=True,
+        )
+        session.run(py, "-c", f"import {module}; print({module}.__name__, {module}.__version__)", external=True)
+        shutil.rmtree(venv_dir, ignore_errors=True)
+
+
+@nox.session
+def demo(session: nox.Session) -> None:
+    """README's main job on the embedded default: a bundled CC0 HDRI into a camera frame, with pictures."""
+    _install(session, "torch==2.13.0", "numpy==1.26.4")
+    _install(session, "-e", "packages/gaffer-envmap", "matplotlib==3.11.2")
+    out = session.posargs[0] if session.posargs else "out/demo"
+    session.run("gaffer-envmap", "demo", "--out", out)
+
+
+@nox.session
+def bench(session: nox.Session) -> None:
+    """Benchmarks: JSON + PNG plots under benchmarks/results/."""
+    _install(session, "torch==2.13.0", "numpy==1.26.4")
+    _install(session, "-e", "packages/gaffer-envmap[hdr]", "matplotlib==3.11.2", "pillow>=10")
+    env = {"PYTHONHASHSEED": "0"}
+    for script in sorted((ROOT / "benchmarks").glob("bench_*.py")):
+        session.run("python", str(script), *session.posargs, env=env)
+
+
+@nox.session
+def docs(session: nox.Session) -> None:
+    """Sphinx site with warnings as errors; the conventions figure is generated from code."""
+    _install(session, "torch==2.13.0", "numpy==1.26.4")
+    _install(
+        session, "-e", "packages/gaffer-envmap[hdr]", "matplotlib==3.11.2",
+        "sphinx>=8", "furo>=2024.8.6", "myst-parser>=4",
+    )
+    session.run("sphinx-build", "-n", "-T", "-W", "--keep-going", "-b", "html", "docs", "docs/_build/html")
+
+
+if __name__ == "__main__":
+    sys.exit("run with: python3 -m nox")

@@ -1,0 +1,164 @@
+"""The `gaffer-data` command line: `render`, `recipe`, `filter`, `train-classifier`, `info`."""
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+from pathlib import Path
+
+from gaffer_data.errors import GafferDataError
+
+
+def _render(args: argparse.Namespace) -> int:
+    from gaffer_data.config import AugmentConfig, RenderConfig
+    from gaffer_data.recipes import scan_objects
+    from gaffer_data.render.plan import scan_envmaps
+    from gaffer_data.render.runner import RunOptions, Shard, render_dataset
+
+    config = RenderConfig(
+        views=args.views,
+        lightings=args.lightings,
+        resolution=args.resolution,
+        samples=args.samples,
+        seed=args.seed,
+        denoise=not args.no_denoise,
+        adaptive_threshold=args.adaptive_threshold,
+        view_transform=args.view_transform,
+        area_light_render=not args.no_area_light,
+        background_visible=args.background_visible,
+        world_map_resolution=args.world_map_resolution,
+        augment=AugmentConfig(flip=not args.no_flip, yaw_steps=args.yaw_steps),
+    )
+    options = RunOptions(
+        workers=args.workers,
+        retries=args.retries,
+        timeout_s=args.timeout,
+        shard=Shard.parse(args.shard),
+        progress=not args.no_progress,
+    )
+    if args.backend != "local":
+        raise GafferDataError(f"`--backend`={args.backend!r} is not implemented yet; use `--backend local`.")
+    objects = scan_objects(args.objects)
+    pool = scan_envmaps(args.envmaps) if config.lightings > 0 else ()
+    summary = render_dataset(objects, pool, args.out, config, options)
+    per_image = sum(summary.image_seconds) / max(1, summary.images)
+    print(
+        f"rendered {len(summary.rendered)} objects ({summary.images} images, {per_image:.2f} s/image), "
+        f"skipped {len(summary.skipped)} complete, failed {len(summary.failed)} in {summary.seconds:.1f} s"
+    )
+    for failure in summary.failed:
+        print(f"  failed {failure.object_id}: {failure.reason}", file=sys.stderr)
+    return 0 if not summary.failed else 1
+
+
+def _recipe(args: argparse.Namespace) -> int:
+    from gaffer_data.recipes import build_default_recipe
+
+    recipe = build_default_recipe(args.out, procedural=args.procedural, seed=args.seed)
+    print(f"objects: {recipe.objects}\nenvmaps: {recipe.envmaps}")
+    return 0
+
+
+def _filter(args: argparse.Namespace) -> int:
+    from gaffer_data.filter.run import filter_objects
+
+    summary = filter_objects(args.src, args.out, rules_path=args.rules, classifier_path=args.classifier)
+    print(f"accepted {summary.accepted} / {summary.total} objects -> {args.out}")
+    return 0
+
+
+def _train(args: argparse.Namespace) -> int:
+    from gaffer_data.filter.classifier import train_classifier
+
+    report = train_classifier(args.features, args.labels, args.out, folds=args.folds)
+    print(json.dumps(dataclasses.asdict(report), indent=1))
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    from gaffer_data.dataset import open_dataset
+
+    ds = open_dataset(args.root)
+    images = 0
+    for obj in ds.iter_objects(verify=args.verify):
+        images += sum(len(v.lit) + (v.area is not None) for v in obj.views)
+    print(f"{len(ds)} complete objects, {images} images, {len(ds.failures)} failed")
+    for failure in ds.failures:
+        print(f"  failed {failure.object_id}: {failure.reason}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `gaffer-data` (exposed for docs and tests)."""
+    parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="store_true")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("render", help="render objects under environment maps with Blender Cycles")
+    r.add_argument("--objects", required=True, type=Path, help="mesh folder or filter .jsonl")
+    r.add_argument("--envmaps", required=True, type=Path, help="folder of .exr/.hdr lat-long maps")
+    r.add_argument("--out", required=True, type=Path)
+    r.add_argument("--views", type=int, default=12)
+    r.add_argument("--lightings", type=int, default=16)
+    r.add_argument("--resolution", type=int, default=512)
+    r.add_argument("--samples", type=int, default=128)
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--workers", type=int, default=1)
+    r.add_argument("--shard", default="0/1", help="i/N: render the i-th of N shards")
+    r.add_argument("--backend", choices=["local", "ray"], default="local")
+    r.add_argument("--retries", type=int, default=1)
+    r.add_argument("--timeout", type=float, default=None, help="seconds per worker attempt")
+    r.add_argument("--no-denoise", action="store_true")
+    r.add_argument("--adaptive-threshold", type=float, default=0.01)
+    r.add_argument("--view-transform", default="Filmic")
+    r.add_argument("--no-area-light", action="store_true")
+    r.add_argument("--background-visible", action="store_true")
+    r.add_argument("--world-map-resolution", type=int, default=0, help="0: Blender's automatic")
+    r.add_argument("--no-flip", action="store_true")
+    r.add_argument("--yaw-steps", type=int, default=8)
+    r.add_argument("--no-progress", action="store_true")
+    r.set_defaults(func=_render)
+
+    c = sub.add_parser("recipe", help="write the embedded default recipe (no downloads)")
+    c.add_argument("out", type=Path)
+    c.add_argument("--procedural", type=int, default=8)
+    c.add_argument("--seed", type=int, default=0)
+    c.set_defaults(func=_recipe)
+
+    f = sub.add_parser("filter", help="compute features, apply rules and a classifier")
+    f.add_argument("src", type=Path, help="mesh folder")
+    f.add_argument("--out", required=True, type=Path, help="output .jsonl manifest")
+    f.add_argument("--rules", type=Path, default=None, help="rules JSON (see FilterRules)")
+    f.add_argument("--classifier", type=Path, default=None, help="trained classifier folder")
+    f.set_defaults(func=_filter)
+
+    t = sub.add_parser("train-classifier", help="train the quality classifier from labelled objects")
+    t.add_argument("features", type=Path, help="a `filter` .jsonl manifest (features)")
+    t.add_argument("labels", type=Path, help="CSV with columns object_id,label (1 good, 0 bad)")
+    t.add_argument("--out", required=True, type=Path)
+    t.add_argument("--folds", type=int, default=5)
+    t.set_defaults(func=_train)
+
+    i = sub.add_parser("info", help="summarise (and optionally verify) a rendered dataset")
+    i.add_argument("root", type=Path)
+    i.add_argument("--verify", action="store_true", help="check every file's sha256")
+    i.set_defaults(func=_info)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `gaffer-data` console script."""
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+    )
+    try:
+        return int(args.func(args))
+    except GafferDataError as exc:
+        print(f"error: {exc.diagnostics()}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

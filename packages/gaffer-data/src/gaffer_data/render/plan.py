@@ -1,0 +1,212 @@
+"""Pure planning of an object's render (no bpy): cameras, envmap draws, area lights, output paths.
+
+Determinism: every random number of an object comes from `SeedSequence([seed, hash(object_id)])`, split
+into independent streams for cameras, envmap draws and area lights. The plan therefore depends only on
+(config, seed, object id, pool), not on the order, sharding or worker count of a run, and changing e.g.
+the number of lightings leaves the cameras unchanged.
+"""
+
+import hashlib
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gaffer_data.config import RenderConfig
+from gaffer_data.dataset.schema import (
+    AreaLightImage,
+    AreaLightSample,
+    CameraPoses,
+    CameraSample,
+    EnvmapRef,
+    Intrinsics,
+    LitImage,
+    ObjectPlan,
+    ViewRecord,
+)
+from gaffer_data.errors import InputError
+
+ENVMAP_SUFFIXES = (".exr", ".hdr")
+# Blender camera axes (x right, y up, looking down -z) -> OpenCV axes (x right, y down, looking down +z).
+_BLENDER_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True, kw_only=True)
+class PoolEntry:
+    """One environment map of the lighting pool."""
+
+    name: str
+    path: Path
+    sha256: str
+
+
+def stable_object_hash(object_id: str) -> int:
+    """A 64-bit integer from the object id, stable across processes and Python versions."""
+    return int.from_bytes(hashlib.sha256(object_id.encode("utf-8")).digest()[:8], "little")
+
+
+def camera_position(elevation_deg: float, azimuth_deg: float, distance: float) -> np.ndarray:
+    """`[3]` position on the sphere: distance * (cos e cos a, cos e sin a, sin e), Blender world (z up)."""
+    e, a = math.radians(elevation_deg), math.radians(azimuth_deg)
+    return distance * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
+
+
+def look_at_c2w_blender(position: Sequence[float], target: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+    """`[4, 4]` camera-to-world of a Blender camera at `position` looking at `target` with +z up.
+
+    Blender cameras look down their local -z with local +y up, as a Track To constraint (-Z, up Y) sets
+    them. Straight above or below the target the up vector is undefined; +y is used there instead.
+    """
+    pos = np.asarray(position, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - pos
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-9:
+        right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, pos
+    return c2w
+
+
+def poses_from_c2w_blender(c2w_blender: np.ndarray, intrinsics: Intrinsics) -> CameraPoses:
+    """Stack per-view matrices into the `cameras.npz` payload.
+
+    Args:
+        c2w_blender: `[V, 4, 4]` camera-to-world matrices in Blender camera axes.
+        intrinsics: the shared intrinsics.
+    """
+    c2w_blender = np.asarray(c2w_blender, dtype=np.float64)
+    w2c = np.linalg.inv(c2w_blender)[:, :3, :]  # [V, 3, 4]
+    c2w_cv = c2w_blender @ _BLENDER_TO_OPENCV  # [V, 4, 4]  flips the camera's y and z axes
+    return CameraPoses(w2c_blender=w2c, c2w_opencv=c2w_cv, intrinsics=intrinsics.matrix())
+
+
+def intrinsics_for(config: RenderConfig) -> Intrinsics:
+    """Pixel intrinsics of the square render (Blender's sensor fit AUTO = width for square images)."""
+    f = config.camera.lens_mm / config.camera.sensor_mm * config.resolution
+    c = config.resolution / 2.0
+    return Intrinsics(width=config.resolution, height=config.resolution, fx=f, fy=f, cx=c, cy=c)
+
+
+def scan_envmaps(folder: str | Path) -> tuple[PoolEntry, ...]:
+    """The lighting pool: every `.exr`/`.hdr` file directly in `folder`, sorted by name.
+
+    Raises:
+        InputError: the folder does not exist or holds no environment map.
+    """
+    from gaffer_data.dataset.manifest import sha256_file
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"`envmaps`={str(folder)!r} is not a folder; pass a folder of .exr/.hdr maps.")
+    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in ENVMAP_SUFFIXES and p.is_file())
+    if not files:
+        raise InputError(
+            f"`envmaps`={str(folder)!r} holds no .exr or .hdr file; add environment maps "
+            "(e.g. `gaffer-data recipe` writes the bundled CC0 ones)."
+        )
+    names = [p.stem for p in files]
+    if len(set(names)) != len(names):
+        raise InputError(f"`envmaps`={str(folder)!r} has two maps with the same stem; rename one.")
+    return tuple(PoolEntry(name=p.stem, path=p.resolve(), sha256=sha256_file(p)) for p in files)
+
+
+def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    return float(rng.uniform(bounds[0], bounds[1]))
+
+
+def plan_object(
+    object_id: str, source: str | Path, pool: Sequence[PoolEntry], config: RenderConfig
+) -> ObjectPlan:
+    """Sample the cameras, envmap draws and area lights of one object and name its outputs.
+
+    Args:
+        object_id: the object's id (also seeds its random streams).
+        source: the mesh file.
+        pool: the lighting pool (`scan_envmaps`); may be empty only when `config.lightings == 0`.
+        config: the render config.
+
+    Returns:
+        The object's plan.
+
+    Raises:
+        InputError: an empty pool with `config.lightings > 0`.
+    """
+    if config.lightings > 0 and not pool:
+        raise InputError("`pool` is empty but `lightings` > 0; pass a folder of environment maps.")
+    seq = np.random.SeedSequence([config.seed, stable_object_hash(object_id)])
+    cam_rng, env_rng, area_rng = (np.random.default_rng(s) for s in seq.spawn(3))
+    cam_cfg, area_cfg, aug = config.camera, config.area_light, config.augment
+    views = []
+    for v in range(config.views):
+        elevation = _uniform(cam_rng, cam_cfg.elevation_deg)
+        azimuth = _uniform(cam_rng, cam_cfg.azimuth_deg)
+        distance = _uniform(cam_rng, cam_cfg.distance)
+        x, y, z = (float(c) for c in camera_position(elevation, azimuth, distance))
+        camera = CameraSample(
+            elevation_deg=elevation, azimuth_deg=azimuth, distance=distance, position=(x, y, z)
+        )
+        lit = []
+        for li in range(config.lightings):
+            entry = pool[int(env_rng.integers(len(pool)))]
+            flip = bool(env_rng.integers(2)) if aug.flip else False
+            yaw_step = int(env_rng.integers(aug.yaw_steps))
+            ref = EnvmapRef(
+                name=entry.name,
+                source=str(entry.path),
+                source_sha256=entry.sha256,
+                flip=flip,
+                yaw_step=yaw_step,
+                num_steps=aug.yaw_steps,
+                strength=config.envmap_strength,
+            )
+            lit.append(
+                LitImage(lighting_index=li, envmap=ref, exr=f"lit/{v:03d}_{li:03d}.exr", png=f"lit/{v:03d}_{li:03d}.png")
+            )
+        area = None
+        if config.area_light_render:
+            light = AreaLightSample(
+                location=(
+                    _uniform(area_rng, area_cfg.xy),
+                    _uniform(area_rng, area_cfg.xy),
+                    _uniform(area_rng, area_cfg.z),
+                ),
+                energy=_uniform(area_rng, area_cfg.energy),
+                scale=area_cfg.scale,
+                world_grey=area_cfg.world_grey,
+            )
+            area = AreaLightImage(
+                light=light,
+                exr=f"area/{v:03d}.exr",
+                png=f"area/{v:03d}.png",
+                normal=f"normal/{v:03d}.exr",
+                albedo=f"albedo/{v:03d}.exr",
+                depth=f"depth/{v:03d}.exr",
+            )
+        has_mask = area is not None or (lit and not config.background_visible)
+        views.append(
+            ViewRecord(
+                index=v,
+                camera=camera,
+                lit=tuple(lit),
+                area=area,
+                alpha=f"alpha/{v:03d}.png" if has_mask else None,
+            )
+        )
+    return ObjectPlan(
+        object_id=object_id,
+        source=str(source),
+        views=tuple(views),
+        intrinsics=intrinsics_for(config),
+        config=config,
+    )
+
+
+def plan_poses(plan: ObjectPlan) -> CameraPoses:
+    """The `cameras.npz` payload of a plan (cameras look at the origin, +z up)."""
+    c2w = np.stack([look_at_c2w_blender(v.camera.position) for v in plan.views])
+    return poses_from_c2w_blender(c2w, plan.intrinsics)

@@ -1,0 +1,399 @@
+"""Run a dataset render: shard, plan, dispatch objects to Blender worker subprocesses, write manifests.
+
+Resumability: an object is complete iff `objects/<id>/manifest.json` exists; it is written atomically
+after every payload was written atomically and hashed. A rerun skips complete objects, cleans temporary
+files of killed writers, keeps the finished images of an interrupted object (its plan is deterministic)
+and renders only what is missing. A worker that fails is retried; an object that still fails is recorded
+in `dataset.json` and `failures.jsonl`, and the run goes on.
+"""
+
+import concurrent.futures
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gaffer_data._atomic import atomic_write, atomic_write_json, remove_stale_temporaries
+from gaffer_data.config import RenderConfig
+from gaffer_data.dataset.manifest import (
+    object_manifest_json,
+    plan_to_json,
+    producer,
+    read_json,
+    sha256_file,
+    utc_now,
+)
+from gaffer_data.dataset.reader import DATASET_NAME, MANIFEST_NAME, OBJECTS_DIR
+from gaffer_data.dataset.schema import (
+    DATASET_SCHEMA,
+    DATASET_SCHEMA_VERSION,
+    FailureRecord,
+    FileRecord,
+    Normalization,
+    ObjectPlan,
+)
+from gaffer_data.errors import ConfigError, InputError, ManifestError
+from gaffer_data.render.plan import PoolEntry, plan_object, plan_poses, stable_object_hash
+from gaffer_data.render.worker import EVENT_PREFIX, NORMALIZATION_NAME
+
+logger = logging.getLogger(__name__)
+
+PLAN_NAME = "_plan.json"
+FAILURES_NAME = "failures.jsonl"
+_PAYLOAD_DIRS = ("lit", "area", "alpha", "normal", "albedo", "depth", ".scratch")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Shard:
+    """Shard `index` of `count`: the objects whose id hash is `index` modulo `count` (job arrays)."""
+
+    index: int = 0
+    count: int = 1
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.index < self.count:
+            raise ConfigError(
+                f"`shard`={self.index}/{self.count} is invalid; use i/N with 0 <= i < N, e.g. 0/4."
+            )
+
+    @classmethod
+    def parse(cls, text: str) -> "Shard":
+        """Parse "i/N".
+
+        Raises:
+            ConfigError: not of the form i/N.
+        """
+        try:
+            index, count = (int(p) for p in text.split("/"))
+        except ValueError as exc:
+            raise ConfigError(f"`--shard`={text!r} is not of the form i/N (e.g. 0/4).") from exc
+        return cls(index=index, count=count)
+
+    def contains(self, object_id: str) -> bool:
+        """Whether this shard renders `object_id` (stable under adding or removing objects)."""
+        return stable_object_hash(object_id) % self.count == self.index
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunOptions:
+    """How a render run executes (none of it changes the images).
+
+    Attributes:
+        workers: Blender worker subprocesses running at once.
+        retries: extra attempts for a failing object before it is recorded as failed.
+        timeout_s: wall-clock limit per worker attempt, or None.
+        shard: which share of the objects this run renders.
+        progress: show a tqdm progress bar on stderr.
+        python: interpreter that runs the workers (the current one by default).
+    """
+
+    workers: int = 1
+    retries: int = 1
+    timeout_s: float | None = None
+    shard: Shard = field(default_factory=Shard)
+    progress: bool = True
+    python: str = sys.executable
+
+    def __post_init__(self) -> None:
+        if self.workers < 1 or self.retries < 0:
+            raise ConfigError(f"`workers`={self.workers} must be >= 1 and `retries`={self.retries} >= 0.")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSummary:
+    """What a run did.
+
+    Attributes:
+        rendered: objects completed by this run.
+        skipped: objects already complete before this run.
+        failed: objects given up on in this run.
+        images: images rendered by this run.
+        seconds: wall-clock time of the run.
+        image_seconds: per-image render times reported by the workers.
+    """
+
+    rendered: tuple[str, ...]
+    skipped: tuple[str, ...]
+    failed: tuple[FailureRecord, ...]
+    images: int
+    seconds: float
+    image_seconds: tuple[float, ...]
+
+
+def _file_records(plan: ObjectPlan, root: Path) -> list[FileRecord]:
+    r = plan.config.resolution
+    records: list[FileRecord] = []
+
+    def add(path: str | None, kind: str, dtype: str, shape: tuple[int, ...], space: str) -> None:
+        if path is None:
+            return
+        if not (root / path).is_file():
+            raise ManifestError(f"the worker finished but `{root / path}` is missing.")
+        records.append(
+            FileRecord(
+                path=path,
+                sha256=sha256_file(root / path),
+                kind=kind,  # type: ignore[arg-type]
+                dtype=dtype,
+                shape=shape,
+                color_space=space,  # type: ignore[arg-type]
+            )
+        )
+
+    add("cameras.npz", "cameras", "npz", (), "data")
+    for view in plan.views:
+        for lit in view.lit:
+            add(lit.exr, "lit_exr", "float32", (r, r, 4), "linear_rec709")
+            add(lit.png, "lit_png", "uint8", (r, r, 4), "srgb")
+        if view.area is not None:
+            add(view.area.exr, "area_exr", "float32", (r, r, 4), "linear_rec709")
+            add(view.area.png, "area_png", "uint8", (r, r, 4), "srgb")
+            add(view.area.normal, "normal", "float32", (r, r, 3), "data")
+            add(view.area.albedo, "albedo", "float32", (r, r, 3), "linear_rec709")
+            add(view.area.depth, "depth", "float32", (r, r), "data")
+        add(view.alpha, "alpha", "uint8", (r, r), "data")
+    return records
+
+
+def _count_images(plan: ObjectPlan) -> int:
+    return sum(len(v.lit) + (v.area is not None) for v in plan.views)
+
+
+def _prepare_folder(plan: ObjectPlan, root: Path) -> None:
+    """Clean temporaries; wipe payloads made from a different plan; write the plan and the poses."""
+    root.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(root)
+    body = plan_to_json(plan)
+    plan_path = root / PLAN_NAME
+    if plan_path.is_file():
+        try:
+            same = read_json(plan_path) == json.loads(json.dumps(body))
+        except ManifestError:
+            same = False
+        if not same:
+            logger.warning("%s: plan changed since the last run; re-rendering it from scratch", plan.object_id)
+            for name in _PAYLOAD_DIRS:
+                shutil.rmtree(root / name, ignore_errors=True)
+    atomic_write_json(plan_path, body)
+    poses = plan_poses(plan)
+
+    def write_npz(tmp: Path) -> None:
+        with open(tmp, "wb") as fh:
+            np.savez(
+                fh,
+                w2c_blender=poses.w2c_blender,
+                c2w_opencv=poses.c2w_opencv,
+                intrinsics=poses.intrinsics,
+            )
+
+    atomic_write(root / "cameras.npz", write_npz)
+
+
+def _run_worker(
+    plan: ObjectPlan, root: Path, options: RunOptions, threads: int, on_image: Callable[[float], None]
+) -> tuple[bool, str]:
+    """One worker attempt; returns (success, reason)."""
+    cmd = [options.python, "-m", "gaffer_data.render.worker", "--job", str(root / PLAN_NAME)]
+    cmd += ["--threads", str(threads)]
+    log_path = root / "_worker.log"
+    reason = "the worker exited without a reason"
+    with open(log_path, "ab") as log:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1)
+        timer = None
+        if options.timeout_s is not None:
+            timer = threading.Timer(options.timeout_s, proc.kill)
+            timer.start()
+        assert proc.stdout is not None  # internal: we asked for a pipe
+        for line in proc.stdout:
+            if not line.startswith(EVENT_PREFIX):
+                continue
+            event = json.loads(line[len(EVENT_PREFIX) :])
+            if event["event"] == "image":
+                on_image(float(event["seconds"]))
+            elif event["event"] == "error":
+                reason = f"{event['kind']}: {event['message'].strip()}"
+        code = proc.wait()
+        if timer is not None:
+            timer.cancel()
+    if code == 0:
+        return True, ""
+    if code < 0:
+        reason = f"the worker was killed by signal {-code}"
+        if options.timeout_s is not None:
+            reason += f" (timeout {options.timeout_s} s?)"
+    return False, f"{reason} (exit code {code}; log: {log_path})"
+
+
+def _finish_object(plan: ObjectPlan, root: Path, source_sha256: str) -> None:
+    norm = read_json(root / NORMALIZATION_NAME)
+    manifest = object_manifest_json(
+        plan,
+        source_sha256=source_sha256,
+        normalization=Normalization(scale=float(norm["scale"]), center=tuple(norm["center"])),  # type: ignore[arg-type]
+        files=_file_records(plan, root),
+    )
+    atomic_write_json(root / MANIFEST_NAME, manifest)
+    for name in (PLAN_NAME, NORMALIZATION_NAME, "_worker.log"):
+        (root / name).unlink(missing_ok=True)
+
+
+def _dataset_json(out: Path, config: RenderConfig, failures: Sequence[FailureRecord]) -> None:
+    ids = sorted(p.parent.name for p in (out / OBJECTS_DIR).glob(f"*/{MANIFEST_NAME}"))
+    atomic_write_json(
+        out / DATASET_NAME,
+        {
+            "schema": DATASET_SCHEMA,
+            "schema_version": DATASET_SCHEMA_VERSION,
+            "producer": dataclasses.asdict(producer()),
+            "created_utc": utc_now(),
+            "config": config.to_dict(),
+            "objects": ids,
+            "failures": [dataclasses.asdict(f) for f in failures if f.object_id not in set(ids)],
+        },
+    )
+
+
+def _check_config(out: Path, config: RenderConfig) -> list[FailureRecord]:
+    """Refuse to mix configs in one folder; return the earlier failures."""
+    path = out / DATASET_NAME
+    if not path.is_file():
+        return []
+    data = read_json(path)
+    if data.get("config") != json.loads(json.dumps(config.to_dict())):
+        raise ConfigError(
+            f"`out`={str(out)!r} was rendered with a different config (see {path}); "
+            "render into a new folder or pass the same options."
+        )
+    return [FailureRecord(**f) for f in data.get("failures", [])]
+
+
+def render_dataset(
+    objects: Sequence[tuple[str, Path]],
+    pool: Sequence[PoolEntry],
+    out: str | Path,
+    config: RenderConfig,
+    options: RunOptions | None = None,
+) -> RunSummary:
+    """Render every object of this shard that is not complete yet.
+
+    Args:
+        objects: `(object_id, mesh path)` pairs (see `gaffer_data.recipes.scan_objects`).
+        pool: the lighting pool (`gaffer_data.render.plan.scan_envmaps`).
+        out: the dataset folder (created).
+        config: what to render.
+        options: how to run it.
+
+    Returns:
+        A summary of the run.
+
+    Raises:
+        ConfigError: `out` holds a render made with a different config.
+        InputError: duplicate object ids.
+    """
+    options = options or RunOptions()
+    out = Path(out)
+    ids = [oid for oid, _ in objects]
+    if len(set(ids)) != len(ids):
+        raise InputError("`objects` holds duplicate object ids; rename the files or use sub-folders.")
+    out.mkdir(parents=True, exist_ok=True)
+    earlier = _check_config(out, config)
+    _dataset_json(out, config, earlier)
+    start = time.perf_counter()
+    todo, skipped = [], []
+    for oid, path in sorted(objects):
+        if not options.shard.contains(oid):
+            continue
+        if (out / OBJECTS_DIR / oid / MANIFEST_NAME).is_file():
+            skipped.append(oid)
+        else:
+            todo.append((oid, Path(path)))
+    plans = [plan_object(oid, path, pool, config) for oid, path in todo]
+    threads = config.threads or max(1, (os.cpu_count() or 1) // options.workers)
+    lock = threading.Lock()
+    image_seconds: list[float] = []
+    bar = _progress_bar(sum(_count_images(p) for p in plans), options.progress)
+
+    def on_image(seconds: float) -> None:
+        with lock:
+            image_seconds.append(seconds)
+            bar.update(1)
+
+    def run_one(plan: ObjectPlan) -> FailureRecord | None:
+        root = out / OBJECTS_DIR / plan.object_id
+        source = Path(plan.source)
+        if not source.is_file():
+            return FailureRecord(object_id=plan.object_id, source=plan.source, attempts=0, reason="source file is missing")
+        source_sha = sha256_file(source)
+        reason = ""
+        for attempt in range(1, options.retries + 2):
+            _prepare_folder(plan, root)
+            ok, reason = _run_worker(plan, root, options, threads, on_image)
+            if ok:
+                try:
+                    _finish_object(plan, root, source_sha)
+                    return None
+                except (ManifestError, OSError) as exc:
+                    reason = f"finishing failed: {exc}"
+            logger.warning("%s: attempt %d failed: %s", plan.object_id, attempt, reason)
+            if reason.startswith("input:"):
+                return FailureRecord(object_id=plan.object_id, source=plan.source, attempts=attempt, reason=reason)
+        return FailureRecord(
+            object_id=plan.object_id, source=plan.source, attempts=options.retries + 1, reason=reason
+        )
+
+    failures: list[FailureRecord] = []
+    rendered: list[str] = []
+    failures_path = out / FAILURES_NAME
+    with concurrent.futures.ThreadPoolExecutor(max_workers=options.workers) as pool_exec:
+        futures = {pool_exec.submit(run_one, p): p for p in plans}
+        for future in concurrent.futures.as_completed(futures):
+            plan = futures[future]
+            failure = future.result()
+            if failure is None:
+                rendered.append(plan.object_id)
+            else:
+                failures.append(failure)
+                with lock, open(failures_path, "a", encoding="utf-8") as fh:
+                    fh.write(json.dumps({**dataclasses.asdict(failure), "time_utc": utc_now()}) + "\n")
+            bar.set_postfix(done=len(rendered) + len(skipped), failed=len(failures))
+    bar.close()
+    keep = {f.object_id: f for f in earlier}
+    keep.update({f.object_id: f for f in failures})
+    _dataset_json(out, config, list(keep.values()))
+    return RunSummary(
+        rendered=tuple(sorted(rendered)),
+        skipped=tuple(skipped),
+        failed=tuple(failures),
+        images=len(image_seconds),
+        seconds=time.perf_counter() - start,
+        image_seconds=tuple(image_seconds),
+    )
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        return None
+
+    def set_postfix(self, **kwargs: object) -> None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+def _progress_bar(total: int, enabled: bool) -> "_NoBar":
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="img", desc="render", dynamic_ncols=True)  # type: ignore[return-value]

@@ -1,0 +1,272 @@
+"""The Blender worker: renders one object's plan into its folder. Run as a subprocess only:
+
+    python -m gaffer_data.render.worker --job OBJECT_DIR/_plan.json [--threads N]
+
+It imports bpy (never pymeshlab or torch), writes every image atomically and skips images that already
+exist (so a killed object resumes where it stopped), and reports progress on stdout as lines starting
+with `GAFFER_EVENT ` followed by JSON. Exit codes: 0 done, 2 bad input, 3 bpy missing, 1 other errors.
+"""
+
+import argparse
+import ctypes
+import json
+import logging
+import os
+import signal
+import sys
+import time
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gaffer_data._atomic import atomic_write, atomic_write_json
+from gaffer_data.dataset.manifest import plan_from_json, read_json
+from gaffer_data.dataset.schema import EnvmapRef, ObjectPlan, ViewRecord
+from gaffer_data.errors import GafferDataError, InputError
+from gaffer_data.render._augment import augment_latlong
+from gaffer_data.render.plan import look_at_c2w_blender
+
+logger = logging.getLogger("gaffer_data.render.worker")
+
+EVENT_PREFIX = "GAFFER_EVENT "
+NORMALIZATION_NAME = "_normalization.json"
+_IMAGE_CACHE_SIZE = 6
+
+
+def emit(event: str, **fields: Any) -> None:
+    """Write one progress event line to stdout (the parent parses these)."""
+    sys.stdout.write(EVENT_PREFIX + json.dumps({"event": event, **fields}) + "\n")
+    sys.stdout.flush()
+
+
+def _die_with_parent() -> None:
+    # Linux: get SIGKILL when the parent dies, so a killed run leaves no orphan writing into the folder.
+    try:
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except OSError:
+        return
+    if os.getppid() == 1:
+        os._exit(1)
+
+
+class _EnvmapCache:
+    """Augmented world images, loaded once per (source, flip, yaw) and evicted least recently used."""
+
+    def __init__(self) -> None:
+        self._sources: OrderedDict[str, np.ndarray] = OrderedDict()
+        self._images: OrderedDict[tuple[str, bool, int, int], Any] = OrderedDict()
+
+    def get(self, ref: EnvmapRef) -> Any:
+        from gaffer_data.render import _scene
+
+        key = (ref.source, ref.flip, ref.yaw_step, ref.num_steps)
+        if key in self._images:
+            self._images.move_to_end(key)
+            return self._images[key]
+        if ref.source not in self._sources:
+            path = Path(ref.source)
+            if not path.is_file():
+                raise InputError(f"environment map `{path}` is missing; restore the `--envmaps` folder.")
+            self._sources[ref.source] = _scene.load_envmap_pixels(path)
+            while len(self._sources) > 2:
+                self._sources.popitem(last=False)
+        pixels = augment_latlong(
+            self._sources[ref.source], flip=ref.flip, yaw_step=ref.yaw_step, num_steps=ref.num_steps
+        )
+        pixels[..., 3] = 1.0
+        image = _scene.image_from_pixels(f"env_{ref.name}_{int(ref.flip)}_{ref.yaw_step}", pixels)
+        self._images[key] = image
+        while len(self._images) > _IMAGE_CACHE_SIZE:
+            import bpy
+
+            _, old = self._images.popitem(last=False)
+            bpy.data.images.remove(old)
+        return image
+
+
+def _save_render(scene: Any, path: Path, fmt: str) -> None:
+    """Save the current Render Result as float32 RGBA EXR or 8-bit RGBA PNG, atomically."""
+    import bpy
+
+    settings = scene.render.image_settings
+    settings.media_type = "IMAGE"
+    if fmt == "EXR":
+        settings.file_format = "OPEN_EXR"
+        settings.color_depth = "32"
+        settings.exr_codec = "ZIP"
+    else:
+        settings.file_format = "PNG"
+        settings.color_depth = "8"
+        settings.compression = 15
+    settings.color_mode = "RGBA"
+    result = bpy.data.images["Render Result"]
+    atomic_write(path, lambda tmp: result.save_render(str(tmp), scene=scene))
+
+
+def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
+    import OpenEXR
+
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+
+    def write(tmp: Path) -> None:
+        with OpenEXR.File(header, {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}) as f:
+            f.write(str(tmp))
+
+    atomic_write(path, write)
+
+
+def _write_mask(path: Path, alpha: np.ndarray) -> None:
+    from PIL import Image
+
+    mask = np.clip(np.round(alpha * 255.0), 0, 255).astype(np.uint8)
+    atomic_write(path, lambda tmp: Image.fromarray(mask, mode="L").save(tmp, format="PNG"))
+
+
+def _read_exr_channels(path: Path) -> dict[str, np.ndarray]:
+    import OpenEXR
+
+    out: dict[str, np.ndarray] = {}
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        for part in f.parts:
+            for name, channel in part.channels.items():
+                out[name] = np.array(channel.pixels, dtype=np.float32)
+    return out
+
+
+def _split_passes(multilayer: Path, root: Path, view: ViewRecord) -> None:
+    """Write normal, albedo, depth (and alpha) payloads from the area render's multilayer EXR."""
+    area = view.area
+    assert area is not None  # internal invariant: only called for views with an area render
+    ch = _read_exr_channels(multilayer)
+
+    def pick(layer: str, names: str) -> dict[str, np.ndarray]:
+        found = {}
+        for c in names:
+            key = next((k for k in ch if k.endswith(f"{layer}.{c}")), None)
+            if key is None:
+                raise GafferDataError(f"the render has no `{layer}.{c}` pass; is this bpy 5.0?")
+            found[c] = ch[key]
+        return found
+
+    normal = pick("Normal", "XYZ")
+    _write_exr(root / area.normal, {"R": normal["X"], "G": normal["Y"], "B": normal["Z"]})
+    _write_exr(root / area.albedo, pick("Diffuse Color", "RGB"))
+    _write_exr(root / area.depth, {"Z": pick("Depth", "Z")["Z"]})
+    if view.alpha is not None:
+        _write_mask(root / view.alpha, pick("Combined", "A")["A"])
+
+
+def _done(root: Path, *paths: str | None) -> bool:
+    return all(p is None or (root / p).is_file() for p in paths)
+
+
+def render_plan(plan: ObjectPlan, root: Path, threads: int) -> None:
+    """Render every missing image of `plan` into `root`.
+
+    Raises:
+        InputError: the source cannot be imported or has no extent.
+    """
+    import bpy
+
+    from gaffer_data.render import _scene
+
+    config = plan.config
+    scene = _scene.reset_scene()
+    _scene.import_object(Path(plan.source))
+    scale, center = _scene.normalize_scene()
+    atomic_write_json(root / NORMALIZATION_NAME, {"scale": scale, "center": list(center)})
+    _scene.configure_cycles(scene, config, threads)
+    camera = _scene.add_camera(scene, config)
+    env_world, env_node = _scene.envmap_world(scene)
+    if config.world_map_resolution > 0:
+        env_world.cycles.sampling_method = "MANUAL"
+        env_world.cycles.sample_map_resolution = config.world_map_resolution
+    env_background = env_world.node_tree.nodes["Background"]
+    env_background.inputs["Strength"].default_value = config.envmap_strength
+    grey = _scene.grey_world(config.area_light.world_grey)
+    light = _scene.add_area_light(scene)
+    cache = _EnvmapCache()
+    scratch = root / ".scratch"
+    for view in plan.views:
+        _scene.set_camera_pose(camera, look_at_c2w_blender(view.camera.position))
+        mask_pending = view.alpha is not None and not (root / view.alpha).is_file()
+        for lit in view.lit:
+            if _done(root, lit.exr, lit.png):
+                continue
+            start = time.perf_counter()
+            scene.world = env_world
+            env_node.image = cache.get(lit.envmap)
+            env_background.inputs["Strength"].default_value = lit.envmap.strength
+            light.hide_render = True
+            scene.render.film_transparent = not config.background_visible
+            _scene.enable_passes(scene, False)
+            bpy.ops.render.render(write_still=False)
+            _save_render(scene, root / lit.exr, "EXR")
+            _save_render(scene, root / lit.png, "PNG")
+            if mask_pending and view.area is None and view.alpha is not None:
+                _write_mask(root / view.alpha, _read_exr_channels(root / lit.exr)["A"])
+                mask_pending = False
+            emit("image", path=lit.exr, seconds=time.perf_counter() - start)
+        area = view.area
+        if area is None or _done(root, area.exr, area.png, area.normal, area.albedo, area.depth, view.alpha):
+            continue
+        start = time.perf_counter()
+        scene.world = grey
+        light.hide_render = False
+        light.location = area.light.location
+        light.scale = (area.light.scale,) * 3
+        light.data.energy = area.light.energy
+        scene.render.film_transparent = True
+        _scene.enable_passes(scene, True)
+        settings = scene.render.image_settings
+        settings.media_type = "MULTI_LAYER_IMAGE"
+        settings.file_format = "OPEN_EXR_MULTILAYER"
+        settings.color_depth = "32"
+        settings.exr_codec = "ZIP"
+        scratch.mkdir(exist_ok=True)
+        multilayer = scratch / f"area_{view.index:03d}.exr"
+        scene.render.filepath = str(multilayer)
+        bpy.ops.render.render(write_still=True)
+        _split_passes(multilayer, root, view)
+        _save_render(scene, root / area.exr, "EXR")
+        _save_render(scene, root / area.png, "PNG")
+        multilayer.unlink(missing_ok=True)
+        emit("image", path=area.exr, seconds=time.perf_counter() - start)
+    if scratch.is_dir():
+        for leftover in scratch.iterdir():
+            leftover.unlink()
+        scratch.rmdir()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of `python -m gaffer_data.render.worker`."""
+    parser = argparse.ArgumentParser(prog="python -m gaffer_data.render.worker")
+    parser.add_argument("--job", required=True, type=Path, help="the object's _plan.json")
+    parser.add_argument("--threads", type=int, default=0, help="Cycles threads (0: all cores)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(name)s: %(message)s")
+    _die_with_parent()
+    try:
+        import bpy  # noqa: F401
+    except ImportError:
+        sys.stderr.write('bpy is not installed; pip install "gaffer-data[render]"\n')
+        return 3
+    try:
+        plan = plan_from_json(read_json(args.job))
+        render_plan(plan, args.job.parent, args.threads)
+    except InputError as exc:
+        emit("error", kind="input", message=str(exc))
+        return 2
+    except Exception as exc:  # the parent records the reason and retries; never a traceback-less death
+        logger.exception("rendering failed")
+        emit("error", kind=type(exc).__name__, message=str(exc))
+        return 1
+    emit("done")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,276 @@
+"""Conditioning of the relighting UNet (paper §3.2, official implementation §1).
+
+The UNet input is the channel concatenation `[z_t, E(x), E(E_H), E(E_L)]` (4 latent channels each):
+
+- `E(x)`: VAE latent of the input image x,
+- `E(E_H)`: VAE latent of the log-normalised HDR map of the target lighting, rotated into the camera frame,
+- `E(E_L)`: VAE latent of the LDR (tone-mapped) map of the same lighting.
+
+The three conditioning images are mapped from [0, 1] to [-1, 1] and encoded in ONE batched VAE call.
+Their latents are raw posterior latents (NOT multiplied by the VAE scaling factor, which applies only to
+z_t) and by default the posterior mode (deterministic); `latent_mode="sample"` draws posterior samples as
+the authors' inference does. The cross-attention context is the CLIP image embedding of x, `[B, 1, D]`
+(D = 768 for ViT-L/14), with the authors' preprocessing: bicubic resize (align_corners=True, no
+antialias), [-1, 1] -> [0, 1], OpenAI mean/std.
+"""
+
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion._validate import check_image_batch, check_unit_range
+from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
+from gaffer_diffusion.errors import MissingDependencyError, ShapeError
+from gaffer_diffusion.models.model import NeuralGafferModel
+
+LatentMode = Literal["mode", "sample"]
+"""How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""
+
+CompatMode = Literal["default", "neural-gaffer"]
+"""gaffer-envmap's lighting encoding: "neural-gaffer" reproduces the authors' maps bit for bit."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class LightingMaps:
+    """Camera-frame lighting maps of the target lighting (the paper's E_L and E_H).
+
+    Attributes:
+        ldr: `[B, 3, H, W]` LDR map E_L in [0, 1].
+        hdr: `[B, 3, H, W]` log-normalised HDR map E_H in [0, 1].
+
+    Raises:
+        ShapeError: on wrong or different shapes.
+        InputValueError: on NaN/Inf or values outside [0, 1].
+    """
+
+    ldr: Float[Tensor, "B 3 H W"]
+    hdr: Float[Tensor, "B 3 H W"]
+
+    def __post_init__(self) -> None:
+        check_image_batch("ldr", self.ldr)
+        check_image_batch("hdr", self.hdr)
+        if self.ldr.shape != self.hdr.shape:
+            raise ShapeError("hdr", tuple(self.hdr.shape), f"the shape of `ldr` {tuple(self.ldr.shape)}")
+        object.__setattr__(self, "ldr", check_unit_range("ldr", self.ldr))
+        object.__setattr__(self, "hdr", check_unit_range("hdr", self.hdr))
+
+    @property
+    def batch_size(self) -> int:
+        """B."""
+        return int(self.ldr.shape[0])
+
+
+@dataclass(frozen=True, kw_only=True)
+class RelightingConditions:
+    """What the relighting model is conditioned on, before encoding.
+
+    Attributes:
+        image: `[B, 3, H, W]` input image x in [0, 1] (sRGB, object on a white background).
+        lighting: target lighting maps, same B, H, W as `image`.
+
+    Raises:
+        ShapeError: when shapes disagree.
+        InputValueError: on NaN/Inf or values outside [0, 1].
+
+    Example:
+        >>> import torch
+        >>> x = torch.rand(2, 3, 64, 64)
+        >>> c = RelightingConditions(image=x, lighting=LightingMaps(ldr=x, hdr=x))
+        >>> c.batch_size
+        2
+    """
+
+    image: Float[Tensor, "B 3 H W"]
+    lighting: LightingMaps
+
+    def __post_init__(self) -> None:
+        check_image_batch("image", self.image)
+        object.__setattr__(self, "image", check_unit_range("image", self.image))
+        if tuple(self.image.shape) != tuple(self.lighting.ldr.shape):
+            raise ShapeError(
+                "lighting.ldr",
+                tuple(self.lighting.ldr.shape),
+                f"the shape of `image` {tuple(self.image.shape)}",
+                "Encode the lighting at the image resolution (`encode_lighting(..., size=H)`).",
+            )
+
+    @property
+    def batch_size(self) -> int:
+        """B."""
+        return int(self.image.shape[0])
+
+
+@dataclass(frozen=True, kw_only=True)
+class EncodedConditions:
+    """Conditioning after the VAE and CLIP encoders; constant across seeds and denoising steps.
+
+    Attributes:
+        image_latents: `[B, 4, h, w]` raw (unscaled) latent of the input image.
+        hdr_latents: `[B, 4, h, w]` raw latent of the HDR map E_H.
+        ldr_latents: `[B, 4, h, w]` raw latent of the LDR map E_L.
+        clip_embeds: `[B, 1, D]` CLIP image embedding of the input (the cross-attention context).
+    """
+
+    image_latents: Float[Tensor, "B 4 h w"]
+    hdr_latents: Float[Tensor, "B 4 h w"]
+    ldr_latents: Float[Tensor, "B 4 h w"]
+    clip_embeds: Float[Tensor, "B 1 D"]
+
+    @property
+    def batch_size(self) -> int:
+        """B."""
+        return int(self.image_latents.shape[0])
+
+    def concat_latents(self) -> Float[Tensor, "B 12 h w"]:
+        """`[E(x), E(E_H), E(E_L)]` along channels, the order the UNet was trained with."""
+        return torch.cat([self.image_latents, self.hdr_latents, self.ldr_latents], dim=1)
+
+    def repeat_interleave(self, repeats: int) -> "EncodedConditions":
+        """Each item repeated `repeats` times in place (item0, item0, item1, ...): several seeds."""
+        return EncodedConditions(
+            image_latents=self.image_latents.repeat_interleave(repeats, dim=0),
+            hdr_latents=self.hdr_latents.repeat_interleave(repeats, dim=0),
+            ldr_latents=self.ldr_latents.repeat_interleave(repeats, dim=0),
+            clip_embeds=self.clip_embeds.repeat_interleave(repeats, dim=0),
+        )
+
+    def select(self, indices: Tensor | list[int]) -> "EncodedConditions":
+        """The items at `indices` (a subset of the batch)."""
+        idx = torch.as_tensor(indices, dtype=torch.long, device=self.image_latents.device)
+        return EncodedConditions(
+            image_latents=self.image_latents[idx],
+            hdr_latents=self.hdr_latents[idx],
+            ldr_latents=self.ldr_latents[idx],
+            clip_embeds=self.clip_embeds[idx],
+        )
+
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "EncodedConditions":
+        """A copy on another device and/or dtype."""
+        return EncodedConditions(
+            image_latents=self.image_latents.to(device=device, dtype=dtype),
+            hdr_latents=self.hdr_latents.to(device=device, dtype=dtype),
+            ldr_latents=self.ldr_latents.to(device=device, dtype=dtype),
+            clip_embeds=self.clip_embeds.to(device=device, dtype=dtype),
+        )
+
+
+def clip_preprocess(image_pm1: Float[Tensor, "B 3 H W"], image_size: int) -> Float[Tensor, "B 3 S S"]:
+    """The authors' CLIP preprocessing of an image in [-1, 1] (official implementation §1).
+
+    Bicubic resize to `image_size` (align_corners=True, no antialias), [-1, 1] -> [0, 1], then the OpenAI
+    mean/std normalisation.
+
+    Args:
+        image_pm1: `[B, 3, H, W]` image in [-1, 1].
+        image_size: CLIP input side length (224 for ViT-L/14).
+
+    Returns:
+        `[B, 3, image_size, image_size]` normalised pixel values.
+    """
+    x = F.interpolate(
+        image_pm1, size=(image_size, image_size), mode="bicubic", align_corners=True, antialias=False
+    )
+    x = (x + 1.0) / 2.0
+    mean = torch.tensor(CLIP_MEAN, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
+    std = torch.tensor(CLIP_STD, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
+    return (x - mean) / std
+
+
+@torch.no_grad()
+def encode_conditions(
+    model: NeuralGafferModel,
+    conditions: RelightingConditions,
+    *,
+    latent_mode: LatentMode = "mode",
+    generator: torch.Generator | None = None,
+) -> EncodedConditions:
+    """Encode the input image and lighting maps (one batched VAE call) and the CLIP embedding.
+
+    Args:
+        model: the networks; inputs are cast to the VAE's / CLIP's device and dtype.
+        conditions: `[B, 3, H, W]` image and maps in [0, 1], H = W = `model.config.resolution`.
+        latent_mode: "mode" (default, deterministic) or "sample" (the authors' inference).
+        generator: RNG for `latent_mode="sample"`.
+
+    Returns:
+        Raw latents `[B, 4, h, w]` each and CLIP embeddings `[B, 1, D]`.
+
+    Raises:
+        ShapeError: when the images are not `resolution x resolution`.
+    """
+    res = model.config.resolution
+    if tuple(conditions.image.shape[2:]) != (res, res):
+        raise ShapeError(
+            "conditions.image",
+            tuple(conditions.image.shape),
+            f"[B, 3, {res}, {res}] (the model's resolution)",
+            "Preprocess with `gaffer_diffusion.preprocess.prepare_object_image(..., size=res)`.",
+        )
+    vae_param = next(model.vae.parameters())
+    b = conditions.batch_size
+    # [3B, 3, H, W]  image, HDR, LDR in one batch, mapped [0, 1] -> [-1, 1] for the VAE
+    stacked = torch.cat([conditions.image, conditions.lighting.hdr, conditions.lighting.ldr], dim=0)
+    stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
+    posterior = model.vae.encode(stacked).latent_dist
+    match latent_mode:
+        case "mode":
+            latents = posterior.mode()
+        case "sample":
+            latents = posterior.sample(generator=generator)
+    # [3B, 4, h, w] -> three [B, 4, h, w]; raw posterior latents (no scaling factor, official impl. §1)
+    image_latents, hdr_latents, ldr_latents = latents.split(b, dim=0)
+
+    enc_param = next(model.image_encoder.parameters())
+    pixels = clip_preprocess(
+        conditions.image.to(device=enc_param.device, dtype=enc_param.dtype) * 2.0 - 1.0,
+        model.config.image_encoder.image_size,
+    )
+    clip_embeds = model.image_encoder(pixel_values=pixels).image_embeds.unsqueeze(1)  # [B, 1, D]
+    return EncodedConditions(
+        image_latents=image_latents,
+        hdr_latents=hdr_latents,
+        ldr_latents=ldr_latents,
+        clip_embeds=clip_embeds,
+    )
+
+
+def lighting_from_envmap(
+    env: object,
+    w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"],
+    *,
+    size: int = 256,
+    compat: CompatMode = "neural-gaffer",
+    spin_deg: float | Tensor = 0.0,
+) -> LightingMaps:
+    """Camera-frame LDR/HDR maps of an environment map via `gaffer_envmap.encode.encode_lighting`.
+
+    Neural Gaffer §3.2: the map is rotated into the target camera frame and split into E_L and E_H.
+    `compat="neural-gaffer"` (the default here) reproduces the maps the released checkpoint was trained
+    with (official implementation §4).
+
+    Args:
+        env: a `gaffer_envmap.EnvironmentMap` or a `[He, We, 3]` linear radiance tensor.
+        w2c_blender: `[B, 3, 4]` or `[B, 3, 3]` world-to-camera matrices in Blender's camera convention.
+        size: side length of the square maps (the model resolution).
+        compat: encoding mode of gaffer-envmap.
+        spin_deg: extra spin of the light about world up (turntables), scalar or `[B]`.
+
+    Returns:
+        `LightingMaps` with `[B, 3, size, size]` maps in [0, 1].
+
+    Raises:
+        MissingDependencyError: when gaffer-envmap's encoder is not importable.
+    """
+    try:
+        from gaffer_envmap.encode import encode_lighting
+    except ImportError as exc:
+        raise MissingDependencyError(
+            "Encoding an environment map needs `gaffer_envmap.encode` (gaffer-envmap>=0.1,<0.2): "
+            'pip install "gaffer-envmap>=0.1,<0.2". Alternatively pass already-encoded `LightingMaps`.'
+        ) from exc
+    encoding = encode_lighting(env, w2c_blender, size=size, compat=compat, spin_deg=spin_deg)
+    return LightingMaps(ldr=encoding.ldr.float(), hdr=encoding.hdr.float())

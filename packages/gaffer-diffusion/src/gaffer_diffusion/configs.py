@@ -1,0 +1,333 @@
+"""Typed, frozen configurations of the Neural Gaffer model and its presets.
+
+A `ModelConfig` describes every network of the model (UNet, VAE, CLIP image encoder, scheduler) with the
+numbers diffusers and transformers need to build them. `ModelConfig.setup()` builds random-initialised
+networks (no download); `gaffer_diffusion.loading` builds them from weights on disk.
+
+Presets (`get_preset`):
+
+- `"neural-gaffer-256"`: the authors' shapes (official implementation §1): an SD-1.x UNet with 16 input
+  channels (`[z_t, E(image), E(HDR), E(LDR)]`, 4 each), cross-attention dim 768, the SD VAE
+  (scaling factor 0.18215) and CLIP ViT-L/14 with its 768-d projection; images 256x256, latents 32x32.
+- `"neural-gaffer-512"`: the same networks at 512x512 (latents 64x64). No released weights.
+- `"tiny"`: a few hundred thousand parameters with the same structure (four 4-channel latents, a VAE with a
+  downsampling factor of 8, a CLIP vision tower with a projection), 64x64 images: CPU tests run in
+  milliseconds per forward.
+"""
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Literal
+
+from gaffer_diffusion.errors import ConfigError
+
+if TYPE_CHECKING:
+    from gaffer_diffusion.models.model import NeuralGafferModel
+
+PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny"]
+
+LATENT_CHANNELS = 4
+"""Channels of one VAE latent; the UNet input is 4 of them: noisy target + 3 conditioning latents."""
+
+CONDITIONING_LATENTS = 3
+"""Number of conditioning latents concatenated after z_t: E(image), E(HDR), E(LDR)."""
+
+CLIP_MEAN: tuple[float, float, float] = (0.48145466, 0.4578275, 0.40821073)
+"""OpenAI CLIP normalisation mean (official implementation §1)."""
+
+CLIP_STD: tuple[float, float, float] = (0.26862954, 0.26130258, 0.27577711)
+"""OpenAI CLIP normalisation standard deviation (official implementation §1)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class UNetConfig:
+    """Shapes of the denoising `diffusers.UNet2DConditionModel`.
+
+    Attributes:
+        sample_size: latent side length (image size / 8).
+        in_channels: 16 for Neural Gaffer: noisy latent (4) + image, HDR and LDR latents (4 each).
+        out_channels: 4 (epsilon of the noisy latent).
+        block_out_channels: channels per resolution level.
+        layers_per_block: ResNet layers per level.
+        down_block_types: diffusers block names, top to bottom.
+        up_block_types: diffusers block names, bottom to top.
+        attention_head_dim: SD-1.x's (mis-named) number of heads, 8.
+        cross_attention_dim: width of the cross-attention context, the CLIP projection dim.
+        norm_num_groups: GroupNorm groups.
+    """
+
+    sample_size: int = 32
+    in_channels: int = 16
+    out_channels: int = 4
+    block_out_channels: tuple[int, ...] = (320, 640, 1280, 1280)
+    layers_per_block: int = 2
+    down_block_types: tuple[str, ...] = (
+        "CrossAttnDownBlock2D",
+        "CrossAttnDownBlock2D",
+        "CrossAttnDownBlock2D",
+        "DownBlock2D",
+    )
+    up_block_types: tuple[str, ...] = (
+        "UpBlock2D",
+        "CrossAttnUpBlock2D",
+        "CrossAttnUpBlock2D",
+        "CrossAttnUpBlock2D",
+    )
+    attention_head_dim: int = 8
+    cross_attention_dim: int = 768
+    norm_num_groups: int = 32
+
+    def to_diffusers(self) -> dict[str, Any]:
+        """Keyword arguments for `UNet2DConditionModel(**kwargs)`."""
+        return {
+            "sample_size": self.sample_size,
+            "in_channels": self.in_channels,
+            "out_channels": self.out_channels,
+            "block_out_channels": self.block_out_channels,
+            "layers_per_block": self.layers_per_block,
+            "down_block_types": self.down_block_types,
+            "up_block_types": self.up_block_types,
+            "attention_head_dim": self.attention_head_dim,
+            "cross_attention_dim": self.cross_attention_dim,
+            "norm_num_groups": self.norm_num_groups,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class VAEConfig:
+    """Shapes of the `diffusers.AutoencoderKL` (the SD VAE by default).
+
+    Attributes:
+        block_out_channels: encoder channels per level; the downsampling factor is 2**(levels - 1).
+        layers_per_block: ResNet layers per level.
+        latent_channels: 4.
+        norm_num_groups: GroupNorm groups.
+        scaling_factor: 0.18215, applied ONLY to the noisy/target latent (official implementation §1).
+        sample_size: nominal image size.
+    """
+
+    block_out_channels: tuple[int, ...] = (128, 256, 512, 512)
+    layers_per_block: int = 2
+    latent_channels: int = LATENT_CHANNELS
+    norm_num_groups: int = 32
+    scaling_factor: float = 0.18215
+    sample_size: int = 256
+
+    @property
+    def downsampling_factor(self) -> int:
+        """Image size / latent size (8 for the SD VAE)."""
+        return 2 ** (len(self.block_out_channels) - 1)
+
+    def to_diffusers(self) -> dict[str, Any]:
+        """Keyword arguments for `AutoencoderKL(**kwargs)`."""
+        levels = len(self.block_out_channels)
+        return {
+            "in_channels": 3,
+            "out_channels": 3,
+            "down_block_types": ("DownEncoderBlock2D",) * levels,
+            "up_block_types": ("UpDecoderBlock2D",) * levels,
+            "block_out_channels": self.block_out_channels,
+            "layers_per_block": self.layers_per_block,
+            "latent_channels": self.latent_channels,
+            "norm_num_groups": self.norm_num_groups,
+            "sample_size": self.sample_size,
+            "scaling_factor": self.scaling_factor,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class ImageEncoderConfig:
+    """Shapes of the `transformers.CLIPVisionModelWithProjection` (CLIP ViT-L/14 by default).
+
+    Attributes:
+        hidden_size: transformer width.
+        intermediate_size: MLP width.
+        num_hidden_layers: transformer depth.
+        num_attention_heads: heads.
+        image_size: input side length after the CLIP resize (224).
+        patch_size: 14.
+        projection_dim: width of `image_embeds`, the UNet's cross-attention context (768).
+        hidden_act: "quick_gelu" for OpenAI CLIP.
+    """
+
+    hidden_size: int = 1024
+    intermediate_size: int = 4096
+    num_hidden_layers: int = 24
+    num_attention_heads: int = 16
+    image_size: int = 224
+    patch_size: int = 14
+    projection_dim: int = 768
+    hidden_act: str = "quick_gelu"
+
+    def to_transformers(self) -> dict[str, Any]:
+        """Keyword arguments for `CLIPVisionConfig(**kwargs)`."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class SchedulerConfig:
+    """The training noise schedule (official implementation §2), shared by every sampler.
+
+    Attributes:
+        num_train_timesteps: 1000.
+        beta_start: 0.00085.
+        beta_end: 0.012.
+        beta_schedule: "scaled_linear".
+        prediction_type: "epsilon".
+        steps_offset: 1 (timesteps 981, 961, ..., 1 for 50 DDIM steps).
+        timestep_spacing: "leading".
+        clip_sample: False.
+        set_alpha_to_one: False.
+    """
+
+    num_train_timesteps: int = 1000
+    beta_start: float = 0.00085
+    beta_end: float = 0.012
+    beta_schedule: str = "scaled_linear"
+    prediction_type: str = "epsilon"
+    steps_offset: int = 1
+    timestep_spacing: str = "leading"
+    clip_sample: bool = False
+    set_alpha_to_one: bool = False
+
+    def to_diffusers(self) -> dict[str, Any]:
+        """Keyword arguments for `DDIMScheduler(**kwargs)` (other schedulers ignore unknown keys)."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelConfig:
+    """Everything needed to build a Neural Gaffer model.
+
+    Attributes:
+        name: preset name or a free label.
+        resolution: image side length in pixels (256 for the released checkpoint).
+        unet: denoiser shapes; `unet.sample_size` must equal `resolution / vae.downsampling_factor`.
+        vae: autoencoder shapes.
+        image_encoder: CLIP vision tower shapes; `projection_dim` must equal `unet.cross_attention_dim`.
+        scheduler: noise schedule.
+
+    Raises:
+        ConfigError: when the parts are inconsistent.
+
+    Example:
+        >>> cfg = get_preset("tiny")
+        >>> cfg.latent_size, cfg.unet.in_channels
+        (8, 16)
+    """
+
+    name: str
+    resolution: int = 256
+    unet: UNetConfig = field(default_factory=UNetConfig)
+    vae: VAEConfig = field(default_factory=VAEConfig)
+    image_encoder: ImageEncoderConfig = field(default_factory=ImageEncoderConfig)
+    scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
+
+    def __post_init__(self) -> None:
+        factor = self.vae.downsampling_factor
+        if self.resolution <= 0 or self.resolution % factor:
+            raise ConfigError(
+                f"`resolution` is {self.resolution}; it must be a positive multiple of the VAE "
+                f"downsampling factor {factor}."
+            )
+        if self.unet.sample_size != self.resolution // factor:
+            raise ConfigError(
+                f"`unet.sample_size` is {self.unet.sample_size} but `resolution` {self.resolution} / "
+                f"{factor} = {self.resolution // factor}. Use `ModelConfig.with_resolution(...)`."
+            )
+        expected_in = LATENT_CHANNELS * (1 + CONDITIONING_LATENTS)
+        if self.unet.in_channels != expected_in:
+            raise ConfigError(
+                f"`unet.in_channels` is {self.unet.in_channels}, expected {expected_in} "
+                "([z_t, E(image), E(HDR), E(LDR)], 4 channels each)."
+            )
+        if self.vae.latent_channels != LATENT_CHANNELS:
+            raise ConfigError(f"`vae.latent_channels` is {self.vae.latent_channels}, expected 4.")
+        if self.image_encoder.projection_dim != self.unet.cross_attention_dim:
+            raise ConfigError(
+                f"`image_encoder.projection_dim` ({self.image_encoder.projection_dim}) must equal "
+                f"`unet.cross_attention_dim` ({self.unet.cross_attention_dim}): the CLIP embedding is "
+                "the cross-attention context."
+            )
+
+    @property
+    def latent_size(self) -> int:
+        """Latent side length h = w = resolution / 8."""
+        return self.resolution // self.vae.downsampling_factor
+
+    def with_resolution(self, resolution: int) -> "ModelConfig":
+        """The same networks at another image size (the UNet is fully convolutional)."""
+        factor = self.vae.downsampling_factor
+        unet = dataclasses.replace(self.unet, sample_size=resolution // max(factor, 1))
+        vae = dataclasses.replace(self.vae, sample_size=resolution)
+        return dataclasses.replace(self, resolution=resolution, unet=unet, vae=vae)
+
+    def setup(self, *, seed: int = 0) -> "NeuralGafferModel":
+        """Build random-initialised networks from this config (no download).
+
+        Args:
+            seed: torch seed for the random initialisation.
+
+        Returns:
+            A `gaffer_diffusion.models.NeuralGafferModel` in float32 on the CPU.
+        """
+        from gaffer_diffusion.models.build import build_model
+
+        return build_model(self, seed=seed)
+
+
+def _tiny() -> ModelConfig:
+    return ModelConfig(
+        name="tiny",
+        resolution=64,
+        unet=UNetConfig(
+            sample_size=8,
+            block_out_channels=(32, 64),
+            layers_per_block=1,
+            down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
+            up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),
+            attention_head_dim=8,
+            cross_attention_dim=32,
+            norm_num_groups=8,
+        ),
+        vae=VAEConfig(
+            block_out_channels=(8, 8, 16, 16),
+            layers_per_block=1,
+            norm_num_groups=8,
+            sample_size=64,
+        ),
+        image_encoder=ImageEncoderConfig(
+            hidden_size=32,
+            intermediate_size=37,
+            num_hidden_layers=2,
+            num_attention_heads=4,
+            image_size=32,
+            patch_size=8,
+            projection_dim=32,
+        ),
+    )
+
+
+PRESETS: tuple[PresetName, ...] = ("neural-gaffer-256", "neural-gaffer-512", "tiny")
+
+
+def get_preset(name: PresetName) -> ModelConfig:
+    """A preset `ModelConfig` by name.
+
+    Args:
+        name: one of `PRESETS`.
+
+    Raises:
+        ConfigError: when `name` is unknown.
+
+    Example:
+        >>> get_preset("neural-gaffer-256").unet.block_out_channels
+        (320, 640, 1280, 1280)
+    """
+    if name == "neural-gaffer-256":
+        return ModelConfig(name=name)
+    if name == "neural-gaffer-512":
+        return dataclasses.replace(ModelConfig(name="neural-gaffer-256").with_resolution(512), name=name)
+    if name == "tiny":
+        return _tiny()
+    raise ConfigError(f"`name` is {name!r}; expected one of {list(PRESETS)}.")

@@ -1,0 +1,73 @@
+"""Errors raised by gaffer-diffusion.
+
+Every error names the argument or file at fault and says how to fix it. Concrete errors also subclass a
+builtin (`ValueError`, `FileNotFoundError`, `ImportError`, `RuntimeError`) so that callers that do not
+know gaffer still catch them sensibly. Errors meant for the command line implement `diagnostics()`.
+"""
+
+from collections.abc import Sequence
+
+
+class GafferDiffusionError(Exception):
+    """Base class of every gaffer-diffusion error."""
+
+    def diagnostics(self) -> str:
+        """A multi-line, human-readable explanation for the command line."""
+        return str(self)
+
+
+class ConfigError(GafferDiffusionError, ValueError):
+    """A configuration value is invalid or two values are inconsistent."""
+
+
+class ShapeError(GafferDiffusionError, ValueError):
+    """A tensor has the wrong shape. Carries `argument`, `actual` and `expected` (as strings)."""
+
+    def __init__(self, argument: str, actual: object, expected: str, fix: str = "") -> None:
+        self.argument = argument
+        self.actual = str(actual)
+        self.expected = expected
+        msg = f"`{argument}` has shape {self.actual}, expected {expected}."
+        super().__init__(f"{msg} {fix}".strip())
+
+
+class InputValueError(GafferDiffusionError, ValueError):
+    """A tensor holds values outside the documented range (NaN, Inf, or outside [0, 1])."""
+
+
+class NonFiniteOutputError(GafferDiffusionError, RuntimeError):
+    """Sampling produced NaN or Inf. Raised instead of returning a silently broken image."""
+
+    def __init__(self, stage: str, dtype: object, indices: Sequence[int]) -> None:
+        self.stage = stage
+        self.dtype = str(dtype)
+        self.indices = tuple(int(i) for i in indices)
+        super().__init__(
+            f"Non-finite values (NaN/Inf) appeared in the {stage} for batch items {list(self.indices)} "
+            f"while running in {self.dtype}. This is usually a half-precision overflow: rerun with "
+            "`dtype=torch.float32` or `dtype=torch.bfloat16` (bf16 has the fp32 exponent range), or pass "
+            '`nonfinite="retry_fp32"` to rerun the affected items in float32 automatically.'
+        )
+
+
+class CheckpointNotFoundError(GafferDiffusionError, FileNotFoundError):
+    """A weights or config file is missing. Says which file, where it looked and how to get it."""
+
+    def __init__(self, what: str, looked_in: Sequence[object], how_to_get: str) -> None:
+        self.what = what
+        self.looked_in = tuple(str(p) for p in looked_in)
+        self.how_to_get = how_to_get
+        where = "\n".join(f"  - {p}" for p in self.looked_in)
+        super().__init__(f"Could not find {what}. Looked in:\n{where}\n{how_to_get}")
+
+
+class CheckpointMismatchError(GafferDiffusionError, ValueError):
+    """A state dict does not match the model (missing, unexpected or mis-shaped tensors)."""
+
+
+class MissingDependencyError(GafferDiffusionError, ImportError):
+    """An optional dependency is needed for this call; the message holds the exact pip command."""
+
+
+class MetricUnavailableError(GafferDiffusionError, RuntimeError):
+    """A metric cannot be computed here (e.g. no offline weights); the message says why."""

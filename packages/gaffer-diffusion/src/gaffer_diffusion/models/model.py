@@ -1,0 +1,55 @@
+"""`NeuralGafferModel`: the four parts of the relighting model, held together with their config."""
+
+from dataclasses import dataclass
+
+import torch
+from diffusers import AutoencoderKL, UNet2DConditionModel
+from transformers import CLIPVisionModelWithProjection
+
+from gaffer_diffusion.configs import ModelConfig
+
+
+@dataclass(frozen=True, kw_only=True)
+class NeuralGafferModel:
+    """The networks of Neural Gaffer (paper §3.2): encoder E, denoiser eps_theta, decoder D, CLIP c(x).
+
+    The dataclass is frozen (the references do not change); the modules inside are ordinary
+    `torch.nn.Module`s, moved with `to()`.
+
+    Attributes:
+        config: the shapes these modules were built with (for loaded weights: read from their configs).
+        unet: the 16-input-channel denoiser.
+        vae: the SD autoencoder (frozen in training).
+        image_encoder: CLIP vision tower with projection (frozen in training).
+    """
+
+    config: ModelConfig
+    unet: UNet2DConditionModel
+    vae: AutoencoderKL
+    image_encoder: CLIPVisionModelWithProjection
+
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> "NeuralGafferModel":
+        """Move every module in place to `device` and/or `dtype`; returns `self`."""
+        for module in (self.unet, self.vae, self.image_encoder):
+            # plain nn.Module.to: diffusers' override only adds a log line about keep-in-fp32 modules,
+            # of which these models have none
+            torch.nn.Module.to(module, device=device, dtype=dtype)
+        return self
+
+    def eval(self) -> "NeuralGafferModel":
+        """Put every module in eval mode; returns `self`."""
+        for module in (self.unet, self.vae, self.image_encoder):
+            module.eval()
+        return self
+
+    @property
+    def device(self) -> torch.device:
+        """Device of the UNet's first parameter."""
+        return next(self.unet.parameters()).device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """Dtype of the UNet's first parameter."""
+        return next(self.unet.parameters()).dtype

@@ -1,0 +1,115 @@
+"""Frozen configs of a sampling call (`SamplingConfig`) and of the runtime (`RuntimeConfig`)."""
+
+import math
+from dataclasses import dataclass
+from typing import Literal, assert_never
+
+import torch
+
+from gaffer_diffusion.conditioning import LatentMode
+from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.schedulers import SCHEDULERS, SchedulerName
+
+NonFinitePolicy = Literal["raise", "retry_fp32"]
+"""What to do when sampling yields NaN/Inf: raise `NonFiniteOutputError` (default) or rerun the affected
+items in float32 from the same initial noise (a float32 copy of the networks is made once, lazily)."""
+
+AttentionBackend = Literal["sdpa", "eager"]
+"""Attention kernels: PyTorch `scaled_dot_product_attention` (diffusers' default) or plain matmuls."""
+
+DtypeName = Literal["float32", "float16", "bfloat16"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class SamplingConfig:
+    """Settings of one sampling call. The defaults are the paper's (official implementation §2).
+
+    Attributes:
+        num_inference_steps: denoising steps (50).
+        guidance_scale: classifier-free guidance scale s (3.0); 1.0 skips the unconditional branch.
+        scheduler: "ddim", "dpmsolver++" or "unipc".
+        eta: DDIM eta (0: deterministic); ignored by the other samplers.
+        timestep_spacing: override the schedule's "leading" spacing (e.g. "trailing" for few steps).
+        latent_mode: conditioning latents from the VAE posterior "mode" (default) or a "sample".
+        nonfinite: what to do on NaN/Inf output (see `NonFinitePolicy`).
+
+    Raises:
+        ConfigError: on out-of-range values.
+    """
+
+    num_inference_steps: int = 50
+    guidance_scale: float = 3.0
+    scheduler: SchedulerName = "ddim"
+    eta: float = 0.0
+    timestep_spacing: Literal["leading", "trailing", "linspace"] | None = None
+    latent_mode: LatentMode = "mode"
+    nonfinite: NonFinitePolicy = "raise"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.num_inference_steps, int) or not 1 <= self.num_inference_steps <= 1000:
+            raise ConfigError(
+                f"`num_inference_steps` is {self.num_inference_steps!r}; expected an int in [1, 1000]."
+            )
+        if not math.isfinite(self.guidance_scale) or self.guidance_scale < 0:
+            raise ConfigError(
+                f"`guidance_scale` is {self.guidance_scale!r}; expected a finite value >= 0 (paper: 3)."
+            )
+        if not 0.0 <= self.eta <= 1.0:
+            raise ConfigError(f"`eta` is {self.eta!r}; expected a value in [0, 1].")
+        if self.scheduler not in SCHEDULERS:
+            raise ConfigError(f"`scheduler` is {self.scheduler!r}; expected one of {list(SCHEDULERS)}.")
+        if self.latent_mode not in ("mode", "sample"):
+            raise ConfigError(f"`latent_mode` is {self.latent_mode!r}; expected 'mode' or 'sample'.")
+        if self.nonfinite not in ("raise", "retry_fp32"):
+            raise ConfigError(f"`nonfinite` is {self.nonfinite!r}; expected 'raise' or 'retry_fp32'.")
+
+    @property
+    def do_classifier_free_guidance(self) -> bool:
+        """False only for guidance 1, where eps = eps_cond exactly and one UNet pass suffices."""
+        return self.guidance_scale != 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class RuntimeConfig:
+    """Where and how the networks run.
+
+    Attributes:
+        device: torch device string ("cpu", "cuda", "cuda:1").
+        dtype: "float32", "float16" or "bfloat16" for all networks.
+        attention: "sdpa" (default) or "eager".
+        compile: wrap the UNet in `torch.compile` (first call is slow; worth it for many calls).
+        compile_mode: `torch.compile` mode, e.g. "max-autotune"; None for the default.
+        compile_backend: `torch.compile` backend ("inductor"; "eager" only checks the wiring).
+    """
+
+    device: str = "cpu"
+    dtype: DtypeName = "float32"
+    attention: AttentionBackend = "sdpa"
+    compile: bool = False
+    compile_mode: str | None = None
+    compile_backend: str = "inductor"
+
+    def __post_init__(self) -> None:
+        if self.dtype not in ("float32", "float16", "bfloat16"):
+            raise ConfigError(
+                f"`dtype` is {self.dtype!r}; expected 'float32', 'float16' or 'bfloat16'."
+            )
+        if self.attention not in ("sdpa", "eager"):
+            raise ConfigError(f"`attention` is {self.attention!r}; expected 'sdpa' or 'eager'.")
+        try:
+            torch.device(self.device)
+        except (RuntimeError, TypeError) as exc:
+            raise ConfigError(f"`device` is {self.device!r}, not a torch device.") from exc
+
+    @property
+    def torch_dtype(self) -> torch.dtype:
+        """The torch dtype named by `dtype`."""
+        match self.dtype:
+            case "float32":
+                return torch.float32
+            case "float16":
+                return torch.float16
+            case "bfloat16":
+                return torch.bfloat16
+            case _:
+                assert_never(self.dtype)

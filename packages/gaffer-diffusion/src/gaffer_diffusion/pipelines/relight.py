@@ -1,0 +1,317 @@
+"""`RelightPipeline`: relight object images under new lighting (paper §3.2, official implementation §2).
+
+Sampling: z_T ~ N(0, I); for each timestep t the UNet sees `[z_t, E(x), E(E_H), E(E_L)]` (16 channels)
+and the CLIP context c(x). Classifier-free guidance uses an unconditional branch with the CLIP embedding
+AND all three conditioning latents zeroed: eps = eps_u + s (eps_c - eps_u). The final latent is divided
+by the VAE scaling factor, decoded, and mapped from [-1, 1] to [0, 1].
+
+Conditioning is encoded once (`encode`) and reused for every seed and step (`sample`).
+Non-finite output (NaN/Inf, typically fp16 overflow) is never returned silently: it raises
+`NonFiniteOutputError` or, with `SamplingConfig(nonfinite="retry_fp32")`, the affected items are rerun
+from the same initial noise with float32 copies of the networks.
+"""
+
+import copy
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import torch
+from diffusers.models.attention_processor import AttnProcessor, AttnProcessor2_0
+from diffusers.utils.torch_utils import randn_tensor
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion.conditioning import (
+    EncodedConditions,
+    LatentMode,
+    RelightingConditions,
+    encode_conditions,
+)
+from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
+from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
+from gaffer_diffusion.schedulers import make_scheduler
+
+logger = logging.getLogger(__name__)
+
+GeneratorArg = torch.Generator | Sequence[torch.Generator] | None
+StepCallback = Callable[[int, int], None]
+
+
+@dataclass(frozen=True, kw_only=True)
+class RelightOutput:
+    """Result of a sampling call.
+
+    Attributes:
+        images: `[N, 3, H, W]` float32 relit images in [0, 1] (N = B x images per condition,
+            ordered item0-seed0, item0-seed1, ..., item1-seed0, ...).
+        latents: `[N, 4, h, w]` final (scaled) latents, in the pipeline dtype.
+        retried_in_fp32: indices of items that produced NaN/Inf and were rerun in float32.
+    """
+
+    images: Float[Tensor, "N 3 H W"]
+    latents: Float[Tensor, "N 4 h w"]
+    retried_in_fp32: tuple[int, ...] = ()
+
+
+def _nonfinite_items(x: Tensor) -> list[int]:
+    return torch.nonzero(~torch.isfinite(x.flatten(1)).all(dim=1)).flatten().tolist()
+
+
+class RelightPipeline:
+    """Diffusion sampling for a `NeuralGafferModel`.
+
+    Args:
+        model: the networks (moved in place to `runtime.device` / `runtime.dtype`).
+        runtime: device, dtype, attention kernels and `torch.compile`.
+
+    Example:
+        >>> import torch
+        >>> from gaffer_diffusion import get_preset, LightingMaps, RelightingConditions, SamplingConfig
+        >>> pipe = RelightPipeline(get_preset("tiny").setup())
+        >>> x = torch.rand(1, 3, 64, 64)
+        >>> cond = RelightingConditions(image=x, lighting=LightingMaps(ldr=x, hdr=x))
+        >>> out = pipe(cond, SamplingConfig(num_inference_steps=2), seeds=[0])
+        >>> out.images.shape
+        torch.Size([1, 3, 64, 64])
+    """
+
+    def __init__(self, model: NeuralGafferModel, runtime: RuntimeConfig | None = None) -> None:
+        self.runtime = runtime or RuntimeConfig()
+        self.model = model.to(device=self.runtime.device, dtype=self.runtime.torch_dtype).eval()
+        match self.runtime.attention:
+            case "sdpa":
+                self.model.unet.set_attn_processor(AttnProcessor2_0())
+            case "eager":
+                self.model.unet.set_attn_processor(AttnProcessor())
+        self._unet: Callable[..., object] = self.model.unet
+        if self.runtime.compile:
+            self._unet = torch.compile(
+                self.model.unet, mode=self.runtime.compile_mode, backend=self.runtime.compile_backend
+            )
+        self._fp32: NeuralGafferModel | None = None
+
+    @property
+    def device(self) -> torch.device:
+        """The device the networks run on."""
+        return torch.device(self.runtime.device)
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """The dtype the networks run in."""
+        return self.runtime.torch_dtype
+
+    def encode(
+        self,
+        conditions: RelightingConditions,
+        *,
+        latent_mode: LatentMode = "mode",
+        generator: torch.Generator | None = None,
+    ) -> EncodedConditions:
+        """Encode image and lighting once (one batched VAE call + CLIP); reuse for many seeds.
+
+        Args:
+            conditions: `[B, 3, H, W]` image and lighting maps in [0, 1].
+            latent_mode: posterior "mode" (default) or "sample" (the authors' inference).
+            generator: RNG for `latent_mode="sample"`.
+
+        Returns:
+            `EncodedConditions` on the pipeline's device and dtype.
+        """
+        return encode_conditions(self.model, conditions, latent_mode=latent_mode, generator=generator)
+
+    def initial_noise(
+        self, batch_size: int, *, generator: GeneratorArg = None, seeds: Sequence[int] | None = None
+    ) -> Float[Tensor, "N 4 h w"]:
+        """Standard-normal initial latents z_T, drawn per item so results do not depend on batching.
+
+        Args:
+            batch_size: N.
+            generator: one generator, or one per item.
+            seeds: one seed per item (CPU generators, so a seed gives the same noise on every device).
+
+        Returns:
+            `[N, 4, h, w]` noise on the pipeline device, in the pipeline dtype.
+        """
+        gens = self._generators(batch_size, generator, seeds)
+        h = self.model.config.latent_size
+        shape = (batch_size, self.model.config.vae.latent_channels, h, h)
+        if isinstance(gens, list):
+            noise = torch.cat([torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens])
+        else:
+            noise = randn_tensor(shape, generator=gens, device=torch.device("cpu"), dtype=torch.float32)
+        return noise.to(device=self.device, dtype=self.dtype)
+
+    @staticmethod
+    def _generators(
+        n: int, generator: GeneratorArg, seeds: Sequence[int] | None
+    ) -> torch.Generator | list[torch.Generator] | None:
+        if seeds is not None:
+            if generator is not None:
+                raise ConfigError("Pass either `generator` or `seeds`, not both.")
+            if len(seeds) != n:
+                raise ConfigError(f"`seeds` has {len(seeds)} entries; expected one per image ({n}).")
+            return [torch.Generator("cpu").manual_seed(int(s)) for s in seeds]
+        if generator is None or isinstance(generator, torch.Generator):
+            return generator
+        gens = list(generator)
+        if len(gens) != n:
+            raise ConfigError(f"`generator` is a list of {len(gens)}; expected one per image ({n}).")
+        return gens
+
+    @torch.no_grad()
+    def sample(
+        self,
+        encoded: EncodedConditions,
+        sampling: SamplingConfig | None = None,
+        *,
+        num_images_per_condition: int = 1,
+        generator: GeneratorArg = None,
+        seeds: Sequence[int] | None = None,
+        latents: Float[Tensor, "N 4 h w"] | None = None,
+        callback: StepCallback | None = None,
+    ) -> RelightOutput:
+        """Denoise from noise to relit images, conditioned on already-encoded conditions.
+
+        Args:
+            encoded: `B` encoded conditions (from `encode`).
+            sampling: steps, guidance, scheduler, ...; None for the paper's settings.
+            num_images_per_condition: K samples (seeds) per condition, N = B x K.
+            generator: one generator or N generators for the initial noise (and DDIM eta > 0).
+            seeds: N integer seeds instead of `generator`.
+            latents: `[N, 4, h, w]` initial noise instead of drawing it.
+            callback: called as `callback(step_index, num_steps)` after every step.
+
+        Returns:
+            `RelightOutput` with `[N, 3, H, W]` images in [0, 1].
+
+        Raises:
+            NonFiniteOutputError: on NaN/Inf output with `sampling.nonfinite == "raise"`.
+            ConfigError: when the number of seeds/generators/latents does not match N.
+        """
+        sampling = sampling or SamplingConfig()
+        if num_images_per_condition < 1:
+            raise ConfigError(
+                f"`num_images_per_condition` is {num_images_per_condition}; expected >= 1."
+            )
+        enc = encoded.to(device=self.device, dtype=self.dtype)
+        if num_images_per_condition > 1:
+            enc = enc.repeat_interleave(num_images_per_condition)
+        n = enc.batch_size
+        gens = self._generators(n, generator, seeds)
+        if latents is None:
+            latents = self.initial_noise(n, generator=gens)
+        elif tuple(latents.shape) != (n, 4, *enc.image_latents.shape[2:]):
+            raise ConfigError(
+                f"`latents` has shape {tuple(latents.shape)}; expected "
+                f"{(n, 4, *enc.image_latents.shape[2:])}."
+            )
+        z_T = latents.to(device=self.device, dtype=self.dtype)
+        z_0, images = _denoise(self.model, self._unet, enc, z_T, sampling, gens, callback)
+
+        bad = sorted(set(_nonfinite_items(z_0)) | set(_nonfinite_items(images)))
+        if bad and sampling.nonfinite == "raise":
+            raise NonFiniteOutputError("sampled latents or decoded images", self.dtype, bad)
+        if bad:
+            logger.warning("NaN/Inf in items %s (%s); rerunning them in float32", bad, self.dtype)
+            fp32 = self._fp32_model()
+            sub_gens = [gens[i] for i in bad] if isinstance(gens, list) else gens
+            z_fix, img_fix = _denoise(
+                fp32,
+                fp32.unet,
+                enc.select(bad).to(dtype=torch.float32),
+                z_T[bad].float(),
+                sampling,
+                sub_gens,
+                None,
+            )
+            still = _nonfinite_items(img_fix)
+            if still:
+                raise NonFiniteOutputError("float32 retry", torch.float32, [bad[i] for i in still])
+            z_0 = z_0.clone()
+            z_0[bad] = z_fix.to(z_0.dtype)
+            images = images.clone()
+            images[bad] = img_fix
+        return RelightOutput(images=images, latents=z_0, retried_in_fp32=tuple(bad))
+
+    def __call__(
+        self,
+        conditions: RelightingConditions,
+        sampling: SamplingConfig | None = None,
+        *,
+        num_images_per_condition: int = 1,
+        generator: GeneratorArg = None,
+        seeds: Sequence[int] | None = None,
+        callback: StepCallback | None = None,
+    ) -> RelightOutput:
+        """Encode `conditions` and sample (see `encode` and `sample`)."""
+        sampling = sampling or SamplingConfig()
+        enc_gen = generator if isinstance(generator, torch.Generator) else None
+        encoded = self.encode(conditions, latent_mode=sampling.latent_mode, generator=enc_gen)
+        return self.sample(
+            encoded,
+            sampling,
+            num_images_per_condition=num_images_per_condition,
+            generator=generator,
+            seeds=seeds,
+            callback=callback,
+        )
+
+    def _fp32_model(self) -> NeuralGafferModel:
+        if self.dtype == torch.float32:
+            return self.model
+        if self._fp32 is None:
+            m = self.model
+            self._fp32 = type(m)(
+                config=m.config,
+                unet=copy.deepcopy(m.unet).float(),
+                vae=copy.deepcopy(m.vae).float(),
+                image_encoder=m.image_encoder,
+            )
+        return self._fp32
+
+
+def _denoise(
+    model: NeuralGafferModel,
+    unet: Callable[..., object],
+    enc: EncodedConditions,
+    z_T: Tensor,
+    sampling: SamplingConfig,
+    generator: torch.Generator | list[torch.Generator] | None,
+    callback: StepCallback | None,
+) -> tuple[Tensor, Tensor]:
+    """The sampling loop and decode. Returns (final latents [N,4,h,w], images [N,3,H,W] float32)."""
+    device = z_T.device
+    scheduler = make_scheduler(
+        sampling.scheduler, model.config.scheduler, timestep_spacing=sampling.timestep_spacing
+    )
+    scheduler.set_timesteps(sampling.num_inference_steps, device=device)
+    z = z_T * scheduler.init_noise_sigma
+    cond = enc.concat_latents()  # [N, 12, h, w]  E(x), E(E_H), E(E_L)
+    context = enc.clip_embeds  # [N, 1, D]
+    cfg = sampling.do_classifier_free_guidance
+    if cfg:
+        # unconditional branch: CLIP embedding AND conditioning latents zeroed (official impl. §2)
+        cond = torch.cat([cond, torch.zeros_like(cond)])  # [2N, 12, h, w]
+        context = torch.cat([context, torch.zeros_like(context)])  # [2N, 1, D]
+    step_kwargs: dict[str, object] = {}
+    if sampling.scheduler == "ddim":
+        step_kwargs = {"eta": sampling.eta, "generator": generator}
+    timesteps = scheduler.timesteps
+    for i, t in enumerate(timesteps):
+        z_in = torch.cat([z, z]) if cfg else z
+        z_in = scheduler.scale_model_input(z_in, t)
+        unet_in = torch.cat([z_in, cond], dim=1)  # [2N, 16, h, w]  z_t + 3x4 conditioning latents
+        eps = unet(unet_in, t, encoder_hidden_states=context).sample  # type: ignore[attr-defined]
+        if cfg:
+            eps_c, eps_u = eps.chunk(2)
+            eps = eps_u + sampling.guidance_scale * (eps_c - eps_u)
+        z = scheduler.step(eps, t, z, **step_kwargs).prev_sample
+        if callback is not None:
+            callback(i, len(timesteps))
+    decoded = model.vae.decode(z / model.config.vae.scaling_factor).sample
+    images = (decoded.float() / 2.0 + 0.5).clamp(0.0, 1.0)
+    # clamp keeps NaN, so the caller's finiteness check still sees them
+    images = torch.where(torch.isfinite(decoded.float()), images, decoded.float())
+    return z, images

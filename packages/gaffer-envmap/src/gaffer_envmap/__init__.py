@@ -1,0 +1,103 @@
+"""gaffer-envmap: equirectangular HDR lighting math for relighting (the leaf of gaffer; imports no sibling).
+
+Public API re-exported here; submodules hold one topic each (see the package README).
+"""
+
+from gaffer_envmap._version import __version__
+from gaffer_envmap.augment import AugmentSpec, augment_pool, augment_specs, flip_horizontal, yaw_roll
+from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
+from gaffer_envmap.conventions import (
+    CONVENTIONS,
+    LatLongConvention,
+    chirality,
+    convert_convention,
+    direction_grid,
+    direction_to_uv,
+    get_convention,
+    row_solid_angle,
+    solid_angle,
+    to_center_alignment,
+    uv_to_direction,
+)
+from gaffer_envmap.encode import LightingEncoding, encode_lighting, hdr_encode, ldr_encode
+from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
+from gaffer_envmap.io import read_envmap, write_envmap, write_png
+from gaffer_envmap.errors import (
+    ConventionError,
+    EnvmapReadError,
+    EnvmapWriteError,
+    GafferEnvmapError,
+    HalfOverflowError,
+    MissingDependencyError,
+    NonFiniteError,
+    PoseError,
+    ShapeError,
+)
+from gaffer_envmap.poses import (
+    IDENTITY_LAYOUT_W2C,
+    C2WOpenCV,
+    W2CBlender,
+    look_at_w2c_blender,
+    orbit_w2c_blender,
+)
+from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
+from gaffer_envmap.rotate import rotate_to_camera
+from gaffer_envmap.sh import irradiance, project_sh, reconstruct_sh, sh_basis
+from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
+
+__all__ = [
+    "CONVENTIONS",
+    "IDENTITY_LAYOUT_W2C",
+    "AugmentSpec",
+    "C2WOpenCV",
+    "ConventionError",
+    "EnvironmentMap",
+    "EnvmapReadError",
+    "EnvmapWriteError",
+    "GafferEnvmapError",
+    "HalfOverflowError",
+    "LatLongConvention",
+    "LightingEncoding",
+    "MissingDependencyError",
+    "NonFiniteError",
+    "PixelAlignment",
+    "PoseError",
+    "ShapeError",
+    "W2CBlender",
+    "__version__",
+    "augment_pool",
+    "augment_specs",
+    "bundled_hdri",
+    "bundled_hdris",
+    "chirality",
+    "convert_convention",
+    "describe",
+    "direction_grid",
+    "direction_to_uv",
+    "encode_lighting",
+    "first_moment",
+    "flip_horizontal",
+    "get_convention",
+    "hdr_encode",
+    "irradiance",
+    "ldr_encode",
+    "look_at_w2c_blender",
+    "mean_light_direction",
+    "orbit_w2c_blender",
+    "project_sh",
+    "read_bundled_hdri",
+    "read_envmap",
+    "write_envmap",
+    "write_png",
+    "reconstruct_sh",
+    "resize_conservative",
+    "resize_conservative_torch",
+    "rotate_to_camera",
+    "row_solid_angle",
+    "sh_basis",
+    "solid_angle",
+    "to_center_alignment",
+    "total_power",
+    "uv_to_direction",
+    "yaw_roll",
+]

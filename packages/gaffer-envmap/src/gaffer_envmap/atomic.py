@@ -1,0 +1,140 @@
+"""Atomic file writes: a reader never sees a half-written file, a failed write never clobbers.
+
+Every gaffer-envmap writer goes through `atomic_write`: the payload is written to a temporary file in
+the destination's directory (same file system, so the final `os.replace` is atomic), flushed to disk
+with `fsync`, then renamed over the destination. On any failure the temporary file is removed and an
+existing destination is left byte-for-byte untouched.
+"""
+
+import contextlib
+import logging
+import os
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TypeVar
+
+from gaffer_envmap.errors import EnvmapWriteError
+
+__all__ = ["atomic_path", "atomic_write"]
+
+logger = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+_NEW_FILE_MODE = 0o644
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(directory: Path) -> None:
+    # Makes the rename itself durable on POSIX; directories cannot be opened on Windows.
+    with contextlib.suppress(OSError):
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _target_mode(path: Path) -> int:
+    try:
+        return path.stat().st_mode & 0o777
+    except OSError:
+        return _NEW_FILE_MODE
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path to write; on success it replaces `path` atomically.
+
+    The temporary file sits beside `path` and keeps its suffix (writers such as OpenImageIO and
+    Pillow pick the format from it). It exists (empty) when the block starts.
+
+    Args:
+        path: the destination file.
+
+    Yields:
+        The temporary path the block must write to.
+
+    Raises:
+        EnvmapWriteError: when the parent directory is missing or the block (or the final rename)
+            fails. The destination is untouched and the temporary file removed.
+
+    Example:
+        >>> import tempfile
+        >>> d = tempfile.mkdtemp()
+        >>> with atomic_path(f"{d}/out.txt") as tmp:
+        ...     _ = tmp.write_text("hello")
+        >>> open(f"{d}/out.txt").read()
+        'hello'
+    """
+    dest = Path(path)
+    if not dest.parent.is_dir():
+        raise EnvmapWriteError(
+            f"Cannot write `path` {str(dest)!r}: its directory {str(dest.parent)!r} does not exist. "
+            "Create it first (e.g. `Path(path).parent.mkdir(parents=True)`)."
+        )
+    try:
+        fd, tmp_name = tempfile.mkstemp(
+            prefix=f".{dest.stem}.", suffix=f".tmp{dest.suffix}", dir=dest.parent
+        )
+    except OSError as exc:
+        raise EnvmapWriteError(
+            f"Cannot write `path` {str(dest)!r}: creating a temporary file failed ({exc})."
+        ) from exc
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        _fsync_file(tmp)
+        os.chmod(tmp, _target_mode(dest))
+        os.replace(tmp, dest)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        if not isinstance(exc, Exception):
+            raise
+        if isinstance(exc, EnvmapWriteError):
+            raise
+        raise EnvmapWriteError(
+            f"Writing `path` {str(dest)!r} failed ({type(exc).__name__}: {exc}); "
+            "the destination was left untouched."
+        ) from exc
+    _fsync_dir(dest.parent)
+    logger.debug("wrote %s", dest)
+
+
+def atomic_write(path: str | os.PathLike[str], write_fn: Callable[[Path], T]) -> T:
+    """Call `write_fn(tmp_path)` and atomically move the result to `path`.
+
+    Args:
+        path: the destination file.
+        write_fn: writes the complete file to the path it is given (a temporary file beside
+            `path`, with the same suffix). Its return value is passed through.
+
+    Returns:
+        What `write_fn` returned.
+
+    Raises:
+        EnvmapWriteError: when `write_fn` raises, or the directory is missing, or the rename
+            fails; chained to the original exception. An existing file at `path` is left
+            untouched and no temporary file remains.
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> d = tempfile.mkdtemp()
+        >>> atomic_write(f"{d}/a.bin", lambda tmp: tmp.write_bytes(b"abc"))
+        3
+        >>> Path(f"{d}/a.bin").read_bytes()
+        b'abc'
+    """
+    with atomic_path(path) as tmp:
+        return write_fn(tmp)

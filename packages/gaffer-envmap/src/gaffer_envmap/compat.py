@@ -1,0 +1,88 @@
+"""The authors' preprocessing, reproduced bit for bit (`compat="neural-gaffer"`).
+
+The released checkpoint was trained on maps made this way, so it should be fed maps made this way
+(reference section 4, steps 1-7):
+
+1. output grid the size of the source, elevation +pi/2 (top) .. -pi/2 and azimuth +pi (left) .. -pi at
+   pixel centres; d_local = (cos phi cos theta, sin phi cos theta, sin theta);
+2. d_world = d_local (A R) as row vectors, A = [[1,0,0],[0,0,-1],[0,1,0]], R the w2c rotation
+   (times Rz on the right for a turntable spin);
+3. theta' = arccos(d_z), phi' = atan2(d_y, d_x), grid x = -phi'/pi, y = 2 theta'/pi - 1, clamped to
+   +-(1 - 1e-7); bilinear `grid_sample`, align_corners=True, zero padding (no seam wrap, identity off by up
+   to half a pixel);
+4. LDR = clip(E, 0, 1) ** (1/2.2); HDR = log1p(10 E) / max(log1p(10 E)) over the rotated map, clipped;
+5. floor(v * 255) to uint8, then PIL bilinear resize of the 2:1 map to size x size (an anisotropic squash).
+
+What we keep from our own code: the direction grid is cached per size and the rotation is batched; both
+change speed only, not a single output value (tests compare against `testing.reference_neural_gaffer`).
+An all-black map would divide by zero in step 4; here its HDR map is all zero, with a warning.
+"""
+
+import math
+import warnings
+from functools import lru_cache
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from PIL import Image
+from torch import Tensor
+
+_A = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]], dtype=torch.float64)
+_CLAMP = 1.0 - 1e-7
+
+
+@lru_cache(maxsize=8)
+def _local_dirs(height: int, width: int) -> Tensor:
+    """`[H*W, 3]` float64 d_local of the authors' output grid (step 1)."""
+    theta = math.pi / 2 - (torch.arange(height, dtype=torch.float64) + 0.5) * math.pi / height
+    phi = math.pi - (torch.arange(width, dtype=torch.float64) + 0.5) * 2 * math.pi / width
+    th, ph = torch.meshgrid(theta, phi, indexing="ij")
+    return torch.stack([torch.cos(ph) * torch.cos(th), torch.sin(ph) * torch.cos(th), torch.sin(th)], -1).reshape(-1, 3)
+
+
+def spin_matrix_authors(spin_index: int, num_frames: int) -> Tensor:
+    """Rz(-2 pi k / N) as the authors build it for turntable frame k of N (multiplied on the right)."""
+    a = -2 * math.pi * spin_index / num_frames
+    return torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+
+
+def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | None = None) -> Tensor:
+    """Steps 1-3 for `[B, He, We, 3]` maps and `[B, 3, 3]` rotations (optional `[B, 3, 3]` right factors).
+
+    Returns `[B, He, We, 3]` float32 rotated maps at source resolution.
+    """
+    b, he, we, _ = radiance.shape
+    m = _A[None].to(rotations.device) @ rotations.to(torch.float64)
+    if spin is not None:
+        m = m @ spin.to(m)
+    d = _local_dirs(he, we).to(rotations.device)[None] @ m  # [B, N, 3]
+    theta = torch.arccos(d[..., 2].clamp(-1.0, 1.0))  # guards a NaN the authors could hit at |d_z| = 1 + eps
+    phi = torch.atan2(d[..., 1], d[..., 0])
+    grid = torch.stack([-phi / math.pi, 2 * theta / math.pi - 1], -1).clamp(-_CLAMP, _CLAMP)
+    grid = grid.reshape(b, he, we, 2).to(torch.float32)
+    img = radiance.permute(0, 3, 1, 2).to(torch.float32)
+    out = F.grid_sample(img, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
+    return out.permute(0, 2, 3, 1)
+
+
+def encode_neural_gaffer(rotated: Tensor, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
+    """Steps 4-5: uint8 `[B, size, size, 3]` LDR and HDR maps from rotated `[B, He, We, 3]` radiance."""
+    e = rotated.to(torch.float32)
+    ldr = torch.clip(e, 0, 1) ** (1 / 2.2)
+    log = torch.log1p(10 * e)
+    peak = log.amax(dim=(1, 2, 3), keepdim=True)
+    if bool((peak <= 0).any()):
+        warnings.warn(
+            "an all-black (or non-positive) environment map: the authors' HDR normaliser would divide by "
+            "zero; its HDR map is set to 0.",
+            stacklevel=3,
+        )
+    hdr = torch.where(peak > 0, log / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(log)).clip(0, 1)
+    ldr_u8 = torch.floor(ldr * 255).to(torch.uint8).cpu().numpy()
+    hdr_u8 = torch.floor(hdr * 255).to(torch.uint8).cpu().numpy()
+    return _pil_resize(ldr_u8, size), _pil_resize(hdr_u8, size)
+
+
+def _pil_resize(batch_u8: np.ndarray, size: int) -> np.ndarray:
+    return np.stack([np.asarray(Image.fromarray(img).resize((size, size), Image.BILINEAR)) for img in batch_u8])

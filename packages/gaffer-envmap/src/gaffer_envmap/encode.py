@@ -1,0 +1,152 @@
+"""The model's two lighting maps (paper section 3.2, "HDR-LDR conditioning"): E_L and E_H, camera frame.
+
+- E_L (LDR) = clip(E, 0, 1) ** (1/2.2): detail in the dim regions (reflections).
+- E_H (HDR) = log1p(10 E) / normaliser: the whole range, log-compressed.
+
+Two modes:
+- `compat="neural-gaffer"`: the authors' exact pipeline (`compat.py`), uint8-quantised, for the released
+  checkpoint.
+- `compat="default"`: rotation straight to the `size x size` grid with area filtering in linear space
+  (power-exact), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
+  normaliser taken from the SOURCE map (its peak after the same pre-filter), so it does not change as the
+  camera turns, and the relative brightness of different maps survives... up to each map's own peak.
+  See docs/encodings.md for a side-by-side figure.
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from gaffer_envmap.compat import encode_neural_gaffer, rotate_neural_gaffer
+from gaffer_envmap.environment_map import EnvironmentMap
+from gaffer_envmap.errors import GafferEnvmapError, ShapeError
+from gaffer_envmap.poses import W2CBlender
+from gaffer_envmap.resample import resize_conservative_torch
+from gaffer_envmap.rotate import (
+    Filter,
+    _spin_matrix,
+    as_radiance_batch,
+    as_rotations,
+    prefilter_height,
+    rotate_to_camera,
+)
+
+Compat = Literal["default", "neural-gaffer"]
+LDR_GAMMA = 2.2
+HDR_GAIN = 10.0
+
+
+@dataclass(frozen=True)
+class LightingEncoding:
+    """The model's lighting conditioning, channels-first, values in [0, 1].
+
+    Attributes:
+        ldr: `[B, 3, S, S]` E_L, camera frame.
+        hdr: `[B, 3, S, S]` E_H, camera frame.
+        compat: which pipeline made them.
+    """
+
+    ldr: Tensor
+    hdr: Tensor
+    compat: Compat = "default"
+
+    def to_uint8(self) -> tuple[np.ndarray, np.ndarray]:
+        """`[B, S, S, 3]` uint8 pair (round-to-nearest; exact for compat maps, which are already 8-bit)."""
+        def q(t: Tensor) -> np.ndarray:
+            return torch.round(t.clamp(0, 1) * 255).to(torch.uint8).permute(0, 2, 3, 1).cpu().numpy()
+
+        return q(self.ldr), q(self.hdr)
+
+
+def ldr_encode(radiance_linear: Tensor) -> Tensor:
+    """E_L = clip(E, 0, 1) ** (1/2.2), elementwise; NaN -> 0."""
+    return torch.nan_to_num(radiance_linear.clamp(0, 1), nan=0.0) ** (1 / LDR_GAMMA)
+
+
+def hdr_encode(radiance_linear: Tensor, peak: Tensor) -> Tensor:
+    """E_H = log1p(10 E) / log1p(10 peak), clipped to [0, 1]; an all-black map (peak 0) gives zeros.
+
+    `peak` broadcasts against `radiance_linear` (e.g. `[B, 1, 1, 1]`).
+    """
+    e = torch.nan_to_num(radiance_linear.clamp_min(0), nan=0.0, posinf=torch.finfo(torch.float32).max)
+    denom = torch.log1p(HDR_GAIN * peak.clamp_min(0))
+    safe = torch.where(denom > 0, denom, torch.ones_like(denom))
+    return torch.where(denom > 0, torch.log1p(HDR_GAIN * e) / safe, torch.zeros_like(e)).clamp(0, 1)
+
+
+def _pair(env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor", w2c: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor", device: "torch.device | str | None") -> tuple[Tensor, Tensor]:
+    src = as_radiance_batch(env, device)
+    rot = as_rotations(w2c, src.device)
+    if src.shape[0] == 1 and rot.shape[0] > 1:
+        src = src.expand(rot.shape[0], -1, -1, -1)
+    elif rot.shape[0] == 1 and src.shape[0] > 1:
+        rot = rot.expand(src.shape[0], -1, -1)
+    if src.shape[0] != rot.shape[0]:
+        raise ShapeError("w2c_blender", tuple(rot.shape), f"[{src.shape[0]}, 3, 4] (one pose per map, or one for all)")
+    return src, rot
+
+
+def encode_lighting(
+    env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor",
+    w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
+    *,
+    size: int = 256,
+    compat: Compat = "default",
+    spin_deg: "float | Tensor" = 0.0,
+    filter: Filter = "area",
+    supersample: int = 2,
+    quantize: bool = False,
+    device: "torch.device | str | None" = None,
+) -> LightingEncoding:
+    """E_L and E_H in the camera frame, ready for the VAE (after mapping [0, 1] -> [-1, 1]).
+
+    Args:
+        env: world maps (Blender convention) `[B, He, 2He, 3]`, or one map for all poses.
+        w2c_blender: Blender world-to-camera poses `[B, 3, 4]`, or one pose for all maps.
+        size: output side S (the paper: 256).
+        compat: "default" (correct) or "neural-gaffer" (bit-compatible with the released checkpoint).
+        spin_deg: extra counter-clockwise turn of the light about world up, scalar or `[B]`.
+        filter, supersample: rotation filter of the default mode (see `rotate_to_camera`).
+        quantize: default mode only: round to 8 bit (round-to-nearest), as a PNG round trip would.
+        device: torch device for the computation.
+
+    Returns:
+        `LightingEncoding` with `ldr` and `hdr` `[B, 3, S, S]` float32 in [0, 1].
+
+    Example:
+        >>> import numpy as np
+        >>> from gaffer_envmap.poses import orbit_w2c_blender
+        >>> env = np.full((16, 32, 3), 0.5, np.float32)
+        >>> enc = encode_lighting(env, orbit_w2c_blender(0.0, 0.0), size=8)
+        >>> tuple(enc.ldr.shape), round(float(enc.ldr.mean()), 4)
+        ((1, 3, 8, 8), 0.7297)
+    """
+    src, rot = _pair(env, w2c_blender, device)
+    if size < 1:
+        raise GafferEnvmapError(f"`size` must be >= 1, got {size}.")
+    if compat == "neural-gaffer":
+        spin = None
+        if not (isinstance(spin_deg, float | int) and spin_deg == 0):
+            spin = _spin_matrix(spin_deg, src.shape[0], src.device).transpose(1, 2)
+        rotated = rotate_neural_gaffer(src, rot, spin)
+        ldr_u8, hdr_u8 = encode_neural_gaffer(rotated, size)
+        to_t = lambda a: torch.from_numpy(a).to(src.device).permute(0, 3, 1, 2).float() / 255  # noqa: E731
+        return LightingEncoding(ldr=to_t(ldr_u8), hdr=to_t(hdr_u8), compat=compat)
+    if compat != "default":
+        raise GafferEnvmapError(f"`compat` must be 'default' or 'neural-gaffer', got {compat!r}.")
+    ss = supersample if filter == "area" else 1
+    if filter == "area":
+        src = resize_conservative_torch(src, prefilter_height(src.shape[1], size, size, ss))
+    rotated = rotate_to_camera(src, rot, height=size, width=size, filter=filter, supersample=supersample,
+                               spin_deg=spin_deg, pairing="zip")  # [B, S, S, 3]
+    # Rotation-invariant normaliser: the source's peak at the resolution the rotation reads.
+    peak = torch.nan_to_num(src, nan=0.0, posinf=0.0).amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
+    ldr = ldr_encode(rotated)
+    hdr = hdr_encode(rotated, peak)
+    if quantize:
+        ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
+    return LightingEncoding(ldr=ldr.permute(0, 3, 1, 2).contiguous(), hdr=hdr.permute(0, 3, 1, 2).contiguous(), compat=compat)

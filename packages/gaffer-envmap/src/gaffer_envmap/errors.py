@@ -1,0 +1,48 @@
+"""Errors raised by gaffer-envmap.
+
+Every error names the argument at fault and says how to fix it. Concrete errors also subclass a builtin
+(`ValueError`, `OSError`, `ImportError`) so callers that do not know gaffer still catch them sensibly.
+"""
+
+
+class GafferEnvmapError(Exception):
+    """Base class of every gaffer-envmap error."""
+
+
+class ShapeError(GafferEnvmapError, ValueError):
+    """An array has the wrong shape. Carries `actual` and `expected` (as strings)."""
+
+    def __init__(self, argument: str, actual: object, expected: str, fix: str = "") -> None:
+        self.argument = argument
+        self.actual = str(actual)
+        self.expected = expected
+        msg = f"`{argument}` has shape {actual}, expected {expected}."
+        super().__init__(f"{msg} {fix}".strip())
+
+
+class NonFiniteError(GafferEnvmapError, ValueError):
+    """An environment map holds NaN, Inf or negative radiance and the sanitize policy is "raise"."""
+
+
+class PoseError(GafferEnvmapError, ValueError):
+    """A camera matrix is malformed (wrong shape, not a rotation, non-finite)."""
+
+
+class ConventionError(GafferEnvmapError, ValueError):
+    """An unknown convention name or an impossible conversion between conventions."""
+
+
+class EnvmapReadError(GafferEnvmapError, OSError):
+    """A file could not be read as an environment map (missing, truncated, corrupt, unsupported)."""
+
+
+class EnvmapWriteError(GafferEnvmapError, OSError):
+    """A file could not be written; the destination was left untouched."""
+
+
+class HalfOverflowError(GafferEnvmapError, ValueError):
+    """A half-float (fp16) write would overflow 65504 and the overflow policy is "raise"."""
+
+
+class MissingDependencyError(GafferEnvmapError, ImportError):
+    """An optional dependency is needed for this call; the message holds the exact pip command."""

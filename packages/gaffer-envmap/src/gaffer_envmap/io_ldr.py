@@ -1,0 +1,196 @@
+"""8-bit PNG / JPEG read and PNG write through Pillow.
+
+Reading returns the stored (encoded) values as float32 in [0, 1]; `decode_to_linear` turns them
+into linear radiance with an explicitly named encoding (env maps saved as PNG are usually sRGB; the
+Neural Gaffer data uses a pure 2.2 power). Writing quantises [0, 1] floats with round-to-nearest
+(`np.rint`, ties to even), not truncation (truncation biases every pixel by -0.5 LSB on average).
+"""
+
+import logging
+import os
+from pathlib import Path
+from typing import Any, Literal, assert_never
+
+import numpy as np
+
+from gaffer_envmap._exr_header import MAX_PIXELS
+from gaffer_envmap.atomic import atomic_write
+from gaffer_envmap.errors import EnvmapReadError, NonFiniteError, ShapeError
+
+__all__ = ["LdrEncoding", "decode_to_linear", "read_ldr", "write_png"]
+
+logger = logging.getLogger(__name__)
+
+LdrEncoding = Literal["srgb", "gamma2.2", "linear"]
+"""How 8-bit values encode linear light.
+
+- "srgb": the IEC 61966-2-1 piecewise curve (linear toe below 0.04045, 2.4 power above).
+- "gamma2.2": a pure power, linear = value ** 2.2 (what Neural Gaffer's LDR maps use).
+- "linear": values are linear already.
+"""
+
+_MODE_CONVERSION = {
+    "1": "L",
+    "P": "RGBA",
+    "PA": "RGBA",
+    "CMYK": "RGB",
+    "YCbCr": "RGB",
+    "LAB": "RGB",
+}
+_SIXTEEN_BIT_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I")
+
+
+def _open(path: Path) -> Any:  # a PIL.Image.Image
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        img = Image.open(path)
+        width, height = img.size
+        if width * height > MAX_PIXELS:
+            raise EnvmapReadError(
+                f"`path` {str(path)!r} declares {width} x {height} pixels, above the supported "
+                f"{MAX_PIXELS}; the file is probably corrupt."
+            )
+        img.load()
+    except FileNotFoundError as exc:
+        raise EnvmapReadError(f"`path` {str(path)!r} does not exist.") from exc
+    except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+        if isinstance(exc, EnvmapReadError):
+            raise
+        raise EnvmapReadError(
+            f"`path` {str(path)!r} could not be decoded as an image ({exc}); the file is "
+            "probably truncated or corrupt."
+        ) from exc
+    return img
+
+
+def read_ldr(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read an 8-bit (or 16-bit grey) PNG / JPEG as stored values in [0, 1].
+
+    Palette images are expanded to RGBA when they have transparency, to RGB otherwise; CMYK and
+    YCbCr JPEGs are converted to RGB.
+
+    Args:
+        path: the file.
+
+    Returns:
+        `[H, W, C]` float32 in [0, 1], C = 1 (grey), 2 (grey + alpha), 3 (RGB) or 4 (RGBA);
+        still encoded (see `decode_to_linear`).
+
+    Raises:
+        EnvmapReadError: missing, truncated, corrupt or too large file.
+    """
+    img = _open(Path(path))
+    mode = img.mode
+    if mode == "P" and "transparency" not in img.info:
+        img, mode = img.convert("RGB"), "RGB"
+    elif mode in _MODE_CONVERSION:
+        img, mode = img.convert(_MODE_CONVERSION[mode]), _MODE_CONVERSION[mode]
+    arr = np.asarray(img)
+    if mode in _SIXTEEN_BIT_MODES:
+        scaled = arr.astype(np.float32) / 65535.0
+    elif arr.dtype == np.uint8:
+        scaled = arr.astype(np.float32) / 255.0
+    else:
+        raise EnvmapReadError(
+            f"`path` {str(path)!r} has Pillow mode {mode!r} ({arr.dtype}); only 8-bit images and "
+            "16-bit grey are supported. Store HDR data as .exr."
+        )
+    if scaled.ndim == 2:
+        scaled = scaled[..., None]
+    return np.ascontiguousarray(scaled)
+
+
+def decode_to_linear(values: np.ndarray, encoding: LdrEncoding = "srgb") -> np.ndarray:
+    """Map encoded values in [0, 1] to linear light.
+
+    Args:
+        values: `[...]` float array of encoded values (alpha must be split off first).
+        encoding: "srgb" (default), "gamma2.2" or "linear".
+
+    Returns:
+        float32 array of the same shape.
+
+    Raises:
+        ValueError: unknown `encoding`.
+
+    Example:
+        >>> decode_to_linear(np.array([0.0, 0.5, 1.0]), "gamma2.2").round(4).tolist()
+        [0.0, 0.2176, 1.0]
+    """
+    if encoding not in ("srgb", "gamma2.2", "linear"):
+        raise ValueError(f"`encoding` must be 'srgb', 'gamma2.2' or 'linear'; got {encoding!r}.")
+    v = np.asarray(values, dtype=np.float32)
+    if encoding == "srgb":
+        return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4).astype(np.float32)
+    if encoding == "gamma2.2":
+        return np.power(np.maximum(v, 0.0), 2.2).astype(np.float32)
+    if encoding == "linear":
+        return v
+    assert_never(encoding)
+
+
+def _to_uint8(image: np.ndarray) -> np.ndarray:
+    arr = np.asarray(image)
+    if arr.dtype == np.uint8:
+        return arr
+    if arr.dtype == np.bool_ or not (
+        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+    ):
+        raise ShapeError("image", f"{arr.shape} {arr.dtype}", "a uint8 or float array")
+    if np.issubdtype(arr.dtype, np.integer):
+        raise ShapeError(
+            "image",
+            f"{arr.shape} {arr.dtype}",
+            "uint8 values or floats in [0, 1]",
+            "Convert integers explicitly (e.g. `(x / 65535).astype(np.float32)`).",
+        )
+    if not np.isfinite(arr).all():
+        raise NonFiniteError(
+            f"`image` holds {int((~np.isfinite(arr)).sum())} NaN/Inf value(s); tone-map and clean "
+            "it before writing a PNG."
+        )
+    outside = int(((arr < 0) | (arr > 1)).sum())
+    if outside:
+        logger.info("clipping %d value(s) outside [0, 1] for an 8-bit PNG", outside)
+    return np.rint(np.clip(arr, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
+    """Write an 8-bit PNG, atomically.
+
+    Args:
+        path: destination (`.png`).
+        image: `[H, W]`, `[H, W, 1]`, `[H, W, 2]` (grey + alpha), `[H, W, 3]` or `[H, W, 4]`;
+            uint8 (written as is) or float in [0, 1] (clipped to [0, 1], then
+            `np.rint(x * 255)`). Values are written as given: encode linear light first.
+
+    Raises:
+        ShapeError: wrong shape or dtype.
+        NonFiniteError: float input with NaN or Inf.
+        EnvmapWriteError: the write failed; an existing file at `path` is left untouched.
+
+    Example:
+        >>> import tempfile
+        >>> p = tempfile.mkdtemp() + "/a.png"
+        >>> write_png(p, np.array([[[0.0, 0.5, 1.0]]]))
+        >>> (read_ldr(p) * 255).round().tolist()
+        [[[0.0, 128.0, 255.0]]]
+    """
+    from PIL import Image
+
+    arr = np.asarray(image)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    if (
+        arr.ndim not in (2, 3)
+        or (arr.ndim == 3 and arr.shape[2] not in (2, 3, 4))
+        or 0 in arr.shape
+    ):
+        raise ShapeError("image", arr.shape, "[H, W], [H, W, 1|2|3|4] with H, W >= 1")
+    data = np.ascontiguousarray(_to_uint8(arr))
+
+    def _write(tmp: Path) -> None:
+        Image.fromarray(data).save(tmp, format="PNG")  # mode from the shape: L, LA, RGB, RGBA
+
+    atomic_write(path, _write)

@@ -1,0 +1,319 @@
+"""Rotate world environment maps into camera frames (Neural Gaffer, section 3.2), batched in torch.
+
+The model sees lighting in the camera's frame: each pixel of the rotated map is a fixed direction relative
+to the camera (layout "neural-gaffer-camera": centre column = camera right, u = 0.25 = viewing direction,
+u = 0.75 = towards the viewer, top row = camera up). We pull: for every output pixel we take its camera-frame
+direction, rotate it into the world, and look the world map up there.
+
+Unlike the authors' pipeline (reference section 4; reproduced in `compat.py`), this one
+- writes straight to the requested output grid (no full-resolution intermediate, no resize afterwards);
+- wraps the u = 0/1 seam and crosses the poles correctly (the row above row 0 is row 0 turned by half);
+- is exact where it should be: coordinates within 1e-3 px of a pixel centre snap to it, so an identity
+  pose returns the input bit for bit and a yaw by whole pixels equals `np.roll`;
+- filters by area: "area" averages s x s stratified bilinear sub-samples per output pixel, weighted by
+  their solid angle, after a conservative (power-exact) pre-downsample of the source to about s samples
+  per output pixel (a tent-filtered box over the footprint: measured median power error 1.5% for 0.5-2
+  degree suns at s = 2, against 12% with nearest taps); `renormalize=True` then rescales each map so total
+  power matches the source exactly (at the price of a global gain that can shift dim regions when a sun
+  is under-sampled, hence off by default). "bilinear" point-samples once per pixel (right when magnifying).
+
+Shapes: maps are channels-last `[M, He, We, 3]`, poses `[P, 3, 3]` world -> Blender camera rotations.
+"""
+
+import math
+from collections.abc import Sequence
+from functools import lru_cache
+from typing import Literal
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from gaffer_envmap.conventions import row_solid_angle
+from gaffer_envmap.environment_map import EnvironmentMap
+from gaffer_envmap.errors import GafferEnvmapError, PoseError, ShapeError
+from gaffer_envmap.poses import W2CBlender, check_rotation
+from gaffer_envmap.resample import resize_conservative_torch
+
+Filter = Literal["area", "bilinear"]
+Pairing = Literal["outer", "zip"]
+_SNAP_PX = 1e-3
+
+
+def as_radiance_batch(envmap: "EnvironmentMap | np.ndarray | Tensor | Sequence[EnvironmentMap]", device: "torch.device | str | None" = None) -> Tensor:
+    """`[M, He, We, 3]` float32 tensor from one or many maps (Blender convention, centre-aligned)."""
+    if isinstance(envmap, EnvironmentMap):
+        envmap = [envmap]
+    if isinstance(envmap, Sequence) and not isinstance(envmap, Tensor | np.ndarray):
+        for e in envmap:
+            if e.convention != "blender" or e.alignment != "center":
+                raise GafferEnvmapError(
+                    f"`envmap` is in convention {e.convention!r} / alignment {e.alignment!r}; convert it with "
+                    "`convert_convention(env, 'blender')` (and `to_center_alignment`) first."
+                )
+        arr = torch.from_numpy(np.stack([e.radiance_linear for e in envmap]))
+    elif isinstance(envmap, np.ndarray):
+        # EnvironmentMap arrays are read-only; torch wants writable memory (copy only then).
+        arr = torch.from_numpy(envmap if envmap.flags.writeable else envmap.copy())
+    else:
+        arr = torch.as_tensor(envmap)
+    if arr.ndim == 3:
+        arr = arr[None]
+    if arr.ndim != 4 or arr.shape[-1] != 3 or arr.shape[2] != 2 * arr.shape[1]:
+        raise ShapeError("envmap", tuple(arr.shape), "[M, He, 2*He, 3] or [He, 2*He, 3]")
+    return arr.to(device=device, dtype=torch.float32)
+
+
+def as_rotations(w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor", device: "torch.device | str | None" = None) -> Tensor:
+    """`[P, 3, 3]` float64 world -> Blender-camera rotations from poses or `[P?, 3, 3|4]` / `[P?, 4, 4]` arrays.
+
+    Raises:
+        PoseError: for wrong shapes or matrices that are not rotations.
+    """
+    if isinstance(w2c_blender, W2CBlender):
+        w2c_blender = [w2c_blender]
+    if isinstance(w2c_blender, Sequence) and not isinstance(w2c_blender, Tensor | np.ndarray):
+        mats = np.stack([p.rotation for p in w2c_blender])
+    else:
+        mats = w2c_blender.detach().cpu().double().numpy() if isinstance(w2c_blender, Tensor) else np.asarray(w2c_blender, np.float64)
+        if mats.ndim == 2:
+            mats = mats[None]
+        if mats.ndim != 3 or mats.shape[1] not in (3, 4) or mats.shape[2] not in (3, 4):
+            raise PoseError(f"`w2c_blender` has shape {mats.shape}, expected [P, 3, 4], [P, 3, 3] or [P, 4, 4].")
+        mats = mats[:, :3, :3]
+        for i, m in enumerate(mats):
+            check_rotation(m, f"w2c_blender[{i}]")
+    return torch.from_numpy(np.ascontiguousarray(mats)).to(device=device)
+
+
+@lru_cache(maxsize=32)
+def _camera_grid(height: int, width: int, ss: int, device_str: str) -> tuple[Tensor, Tensor]:
+    """Camera-frame sub-sample directions `[height*ss, width*ss, 3]` and row weights `[height*ss]` (float32).
+
+    Sub-samples sit at the centres of an ss x ss split of each output pixel; their weight is the solid
+    angle of their cell, normalised within the pixel (so a pixel's value is an Omega-weighted mean).
+    """
+    hs, ws = height * ss, width * ss
+    v = (torch.arange(hs, dtype=torch.float64) + 0.5) / hs
+    u = (torch.arange(ws, dtype=torch.float64) + 0.5) / ws
+    theta = math.pi * v  # polar angle from camera up (+y)
+    phi = 2 * math.pi * (0.5 - u)  # 0 at camera right (+x), +pi/2 at the viewing direction (-z)
+    st, ct = torch.sin(theta)[:, None], torch.cos(theta)[:, None]
+    # neural-gaffer-camera layout: d = cos(t) up + sin(t) (cos(p) right + sin(p) forward), forward = -z.
+    dirs = torch.stack(
+        [st * torch.cos(phi)[None, :], ct.expand(hs, ws), -st * torch.sin(phi)[None, :]], dim=-1
+    )
+    w = torch.from_numpy(row_solid_angle(hs, ws)).reshape(height, ss)
+    w = (w / w.sum(dim=1, keepdim=True)).reshape(hs)
+    return dirs.to(device=device_str, dtype=torch.float32), w.to(device=device_str, dtype=torch.float32)
+
+
+def _spin_matrix(spin_deg: "float | Tensor", count: int, device: torch.device) -> Tensor:
+    """`[count, 3, 3]` rotations about world +z by -spin (the lookup turns opposite to the light)."""
+    ang = torch.as_tensor(spin_deg, dtype=torch.float64, device=device).reshape(-1)
+    if ang.numel() == 1:
+        ang = ang.expand(count)
+    if ang.numel() != count:
+        raise ShapeError("spin_deg", tuple(ang.shape), f"a scalar or [{count}] (one per pose)")
+    a = torch.deg2rad(-ang)
+    c, s, z, o = torch.cos(a), torch.sin(a), torch.zeros_like(a), torch.ones_like(a)
+    return torch.stack([c, -s, z, s, c, z, z, z, o], dim=-1).reshape(count, 3, 3)
+
+
+def source_coordinates(rotations: Tensor, height: int, width: int, src_height: int, ss: int = 1, spin_deg: "float | Tensor" = 0.0) -> tuple[Tensor, Tensor]:
+    """Fractional source pixel coordinates (x, y), each `[P, height*ss, width*ss]` float32, for a source of
+    `src_height` rows in the Blender layout (x = column, y = row, pixel centres at integers)."""
+    device = rotations.device
+    dirs_cam, _ = _camera_grid(height, width, ss, str(device))
+    p = rotations.shape[0]
+    # d_world = R^T d_cam; as row vectors d_cam @ R. Spin: lookup = Rz(-spin) d_world.
+    # float32 is enough: its round-off (< 1e-4 px at We = 4096) is far inside the snapping tolerance.
+    m = rotations.to(torch.float64) @ _spin_matrix(spin_deg, p, device).transpose(1, 2)
+    hs, ws = dirs_cam.shape[:2]
+    dirs_world = (dirs_cam.reshape(1, hs * ws, 3) @ m.float()).reshape(p, hs, ws, 3)
+    x, y, z = dirs_world.unbind(-1)
+    u = 0.5 - torch.atan2(y, x) / (2 * math.pi)
+    v = torch.acos(z.clamp(-1.0, 1.0)) / math.pi
+    src_width = 2 * src_height
+    col = torch.remainder(u * src_width - 0.5, src_width)
+    row = v * src_height - 0.5
+    # Snap to pixel centres: makes identity and whole-pixel yaws exact despite trig round-off.
+    col = torch.where((col - col.round()).abs() < _SNAP_PX, col.round(), col)
+    row = torch.where((row - row.round()).abs() < _SNAP_PX, row.round(), row)
+    col = torch.remainder(col, src_width)
+    return col.float(), row.float()
+
+
+def _pad_periodic(src: Tensor) -> Tensor:
+    """`[M, He+2, We+2, 3]`: one column wrapped on each side; above row 0 / below the last row, the same
+    row turned by half (the neighbour across the pole)."""
+    we = src.shape[2]
+    top = torch.roll(src[:, :1], we // 2, dims=2)
+    bottom = torch.roll(src[:, -1:], we // 2, dims=2)
+    rows = torch.cat([top, src, bottom], dim=1)
+    return torch.cat([rows[:, :, -1:], rows, rows[:, :, :1]], dim=2)
+
+
+def _gather(src_flat: Tensor, idx: Tensor, pairing: Pairing) -> Tensor:
+    """src_flat `[M, N_src, 3]`, idx `[P, N]` -> `[M, P, N, 3]` (outer) or `[B, N, 3]` (zip)."""
+    if pairing == "outer":
+        return src_flat[:, idx]
+    return torch.gather(src_flat, 1, idx[..., None].expand(-1, -1, 3))
+
+
+def _sample(src: Tensor, col: Tensor, row: Tensor, pairing: Pairing) -> Tensor:
+    """Bilinear taps (seam wrapped, poles crossed) at fractional pixel coordinates."""
+    m, he, we, _ = src.shape
+    padded = _pad_periodic(src)
+    wp = we + 2
+    flat = padded.reshape(m, (he + 2) * wp, 3)
+    x, y = col + 1.0, row + 1.0  # into padded coordinates
+    x0f, y0f = torch.floor(x), torch.floor(y)
+    fx, fy = (x - x0f).flatten(1)[..., None], (y - y0f).flatten(1)[..., None]
+    x0, y0 = x0f.long().flatten(1), y0f.long().flatten(1)
+    out = None
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            w = wy * wx
+            if pairing == "outer":
+                w = w[None]
+            term = _gather(flat, (y0 + dy) * wp + (x0 + dx), pairing) * w
+            # Zero weights must not turn Inf/NaN neighbours into NaN: exact identity stays exact.
+            term = torch.where(w == 0, torch.zeros_like(term), term)
+            out = term if out is None else out + term
+    return out  # type: ignore[return-value]
+
+
+def prefilter_height(src_height: int, out_height: int, out_width: int, ss: int) -> int:
+    """Source height after the conservative pre-downsample: the smallest divisor-compatible height that
+    keeps at least `ss` source pixels per output pixel in both angles (never upsamples)."""
+    need = ss * max(out_height, (out_width + 1) // 2)
+    h = src_height
+    while h % 2 == 0 and h // 2 >= need:
+        h //= 2
+    return h
+
+
+def rotate_to_camera(
+    envmap: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor",
+    w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
+    *,
+    height: int | None = None,
+    width: int | None = None,
+    filter: Filter = "area",
+    supersample: int = 2,
+    renormalize: bool = False,
+    spin_deg: "float | Tensor" = 0.0,
+    pairing: Pairing = "outer",
+    device: "torch.device | str | None" = None,
+) -> Tensor:
+    """Camera-frame maps (layout "neural-gaffer-camera") of world maps seen from camera poses.
+
+    Args:
+        envmap: world maps in the Blender convention, `[M, He, 2He, 3]` (or one map).
+        w2c_blender: Blender world-to-camera poses, `[P, 3, 4]` (or 3x3 / 4x4, or `W2CBlender`s).
+        height: output rows (default: the source's). The model's maps use height = width = 256.
+        width: output columns (default 2 * height). Any width works; a 2:1 map has square pixels.
+        filter: "area" (default; solid-angle-weighted box over each output pixel) or "bilinear".
+        supersample: s for s x s sub-samples per output pixel (area filter; >= 1).
+        renormalize: rescale each map so output power equals source power exactly (area filter; off by
+            default because the gain also moves the sky when a small sun is under-sampled).
+        spin_deg: extra turn of the light about world up (counter-clockwise from above), scalar or `[P]`.
+        pairing: "outer" -> every map with every pose, `[M, P, H, W, 3]`; "zip" -> map i with pose i,
+            `[B, H, W, 3]` (M == P == B).
+        device: torch device (default: the map tensor's).
+
+    Returns:
+        Linear radiance `[M, P, H, W, 3]` or `[B, H, W, 3]`, float32.
+
+    Raises:
+        ShapeError, PoseError, GafferEnvmapError: bad shapes, non-rotations, bad options.
+
+    Example:
+        >>> import numpy as np
+        >>> from gaffer_envmap.poses import IDENTITY_LAYOUT_W2C
+        >>> env = np.random.default_rng(0).random((8, 16, 3)).astype(np.float32)
+        >>> out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C, filter="bilinear")
+        >>> bool((out[0, 0].numpy() == env).all())
+        True
+    """
+    src = as_radiance_batch(envmap, device)
+    rot = as_rotations(w2c_blender, src.device)
+    m, he, we, _ = src.shape
+    p = rot.shape[0]
+    if pairing == "zip" and m != p:
+        raise ShapeError("w2c_blender", (p, 3, 3), f"[{m}, 3, 3] (pairing='zip' needs one pose per map)")
+    if pairing not in ("outer", "zip"):
+        raise GafferEnvmapError(f"`pairing` must be 'outer' or 'zip', got {pairing!r}.")
+    if filter not in ("area", "bilinear"):
+        raise GafferEnvmapError(f"`filter` must be 'area' or 'bilinear', got {filter!r}.")
+    if supersample < 1:
+        raise GafferEnvmapError(f"`supersample` must be >= 1, got {supersample}.")
+    out_h = he if height is None else int(height)
+    out_w = 2 * out_h if width is None else int(width)
+    if out_h < 1 or out_w < 1:
+        raise ShapeError("height/width", (out_h, out_w), "positive sizes")
+    ss = supersample if filter == "area" else 1
+    if filter == "area":
+        src = resize_conservative_torch(src, prefilter_height(he, out_h, out_w, ss))
+    col, row = source_coordinates(rot, out_h, out_w, src.shape[1], ss, spin_deg)
+    samples = _sample(src, col, row, pairing)  # [M, P, N, 3] or [B, N, 3]
+    lead = samples.shape[:-2]
+    samples = samples.reshape(*lead, out_h * ss, out_w, ss, 3)
+    if ss > 1:
+        _, w = _camera_grid(out_h, out_w, ss, str(src.device))
+        samples = samples.reshape(*lead, out_h, ss, out_w, ss, 3)
+        w4 = w.reshape(out_h, ss)[:, :, None, None, None] / ss
+        out = (samples * w4).sum(dim=(-4, -2))
+    else:
+        out = samples.reshape(*lead, out_h, out_w, 3)
+    out = _exact_permutations(out, src, rot, spin_deg, pairing)
+    if filter == "area" and renormalize:
+        out = _renormalize(out, src, out_h, out_w, pairing)
+    return out
+
+
+def _exact_permutations(out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float | Tensor", pairing: Pairing) -> Tensor:
+    """Replace the output of every pose that maps the output grid exactly onto the source grid.
+
+    That happens when sizes match and the lookup rotation is the identity layout turned about world up by
+    a whole number of pixels (identity, whole-pixel yaws, full turns). The result is then a pure column
+    roll of the source: bit-exact whatever the filter (sub-samples would otherwise blur it by a quarter
+    pixel).
+    """
+    m_, he, we, _ = src.shape
+    if out.shape[-3:-1] != (he, we):
+        return out
+    m = rot.to(torch.float64) @ _spin_matrix(spin_deg, rot.shape[0], rot.device).transpose(1, 2)
+    # m = R0 Rz(a) for some a  <=>  R0^T m is a rotation about z.
+    r0 = torch.as_tensor(_IDENTITY_LAYOUT, dtype=torch.float64, device=rot.device)
+    rz = r0.T @ m
+    is_yaw = (rz[:, 2, 2] - 1).abs() < 1e-12
+    shift = torch.atan2(rz[:, 1, 0], rz[:, 0, 0]) * we / (2 * math.pi)  # lookup turns by -a
+    whole = is_yaw & ((shift - shift.round()).abs() < 1e-6)
+    if not bool(whole.any()):
+        return out
+    out = out.clone()
+    for p in torch.nonzero(whole).flatten().tolist():
+        k = int(round(float(shift[p])))
+        if pairing == "outer":
+            out[:, p] = torch.roll(src, -k, dims=2)
+        else:
+            out[p] = torch.roll(src[p], -k, dims=1)
+    return out
+
+
+_IDENTITY_LAYOUT = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0))
+
+
+def _renormalize(out: Tensor, src: Tensor, out_h: int, out_w: int, pairing: Pairing) -> Tensor:
+    """Scale each rotated map so its total power per channel equals the source's (exact global energy)."""
+    om_src = torch.from_numpy(row_solid_angle(src.shape[1], src.shape[2])).to(src.device, torch.float64)
+    om_out = torch.from_numpy(row_solid_angle(out_h, out_w)).to(src.device, torch.float64)
+    p_src = (src.double() * om_src[None, :, None, None]).sum(dim=(1, 2))  # [M, 3]
+    p_out = (out.double() * om_out[:, None, None]).sum(dim=(-3, -2))  # [M, P, 3] or [B, 3]
+    if pairing == "outer":
+        p_src = p_src[:, None]
+    finite = torch.isfinite(p_src) & torch.isfinite(p_out) & (p_out > 0)
+    scale = torch.where(finite, p_src / torch.where(finite, p_out, torch.ones_like(p_out)), torch.ones_like(p_out))
+    return (out.double() * scale[..., None, None, :]).float()

@@ -1,0 +1,143 @@
+"""Find and repair NaN, ±Inf and negative radiance in an environment map.
+
+A single NaN propagates through every blur, resize and rotation, and a single Inf turns an energy
+normalisation into zeros, so maps are checked once, on load (the policy is an argument of
+`gaffer_envmap.io.read_envmap`). Counts are per value (per channel), not per pixel.
+"""
+
+import logging
+from dataclasses import dataclass
+from typing import Literal, assert_never
+
+import numpy as np
+
+from gaffer_envmap.errors import NonFiniteError
+
+__all__ = ["SanitizePolicy", "SanitizeReport", "sanitize"]
+
+logger = logging.getLogger(__name__)
+
+SanitizePolicy = Literal["raise", "zero", "clamp"]
+"""What `sanitize` does with NaN, +Inf, -Inf and negative values.
+
+- "raise": raise `NonFiniteError` naming the counts (nothing is changed).
+- "zero": NaN, ±Inf and negatives become 0.
+- "clamp": NaN, -Inf and negatives become 0; +Inf becomes the largest finite value in the map
+  (0 when there is none), which keeps a clipped sun bright instead of deleting it.
+"""
+
+_POLICIES = ("raise", "zero", "clamp")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SanitizeReport:
+    """What `sanitize` found and did. Counts are per value (one pixel can count three times).
+
+    Attributes:
+        num_nan: NaN values found.
+        num_posinf: +Inf values found.
+        num_neginf: -Inf values found.
+        num_negative: finite values < 0 found (-0.0 is not negative).
+        policy: the policy that was applied.
+        posinf_replacement: the value +Inf became under "clamp" (0.0 under "zero"), else None.
+    """
+
+    num_nan: int
+    num_posinf: int
+    num_neginf: int
+    num_negative: int
+    policy: SanitizePolicy
+    posinf_replacement: float | None = None
+
+    @property
+    def num_bad(self) -> int:
+        """Total number of values that were (or, under "raise", would be) changed."""
+        return self.num_nan + self.num_posinf + self.num_neginf + self.num_negative
+
+    @property
+    def clean(self) -> bool:
+        """True when the input held no NaN, Inf or negative value."""
+        return self.num_bad == 0
+
+    def describe(self) -> str:
+        """A one-line summary such as "2 NaN, 1 +Inf, 0 -Inf, 5 negative"."""
+        return (
+            f"{self.num_nan} NaN, {self.num_posinf} +Inf, {self.num_neginf} -Inf, "
+            f"{self.num_negative} negative"
+        )
+
+
+def _check_policy(policy: str) -> None:
+    if policy not in _POLICIES:
+        raise ValueError(
+            f"`policy` must be one of {', '.join(repr(p) for p in _POLICIES)}; got {policy!r}."
+        )
+
+
+def sanitize(
+    radiance: np.ndarray, policy: SanitizePolicy = "raise", *, name: str = "radiance"
+) -> tuple[np.ndarray, SanitizeReport]:
+    """Check an array for NaN, ±Inf and negative values and apply `policy`.
+
+    Args:
+        radiance: `[..., C]` (any shape) float array, typically `[He, We, 3]` linear radiance.
+        policy: "raise", "zero" or "clamp" (see `SanitizePolicy`).
+        name: how to call the array in error messages (e.g. a file path).
+
+    Returns:
+        `(clean, report)`: `clean` has the shape and dtype of `radiance` (a new array when anything
+        was replaced, otherwise `radiance` itself); `report` holds the counts.
+
+    Raises:
+        NonFiniteError: under "raise" when any NaN, ±Inf or negative value is present.
+        ValueError: when `policy` is unknown.
+
+    Example:
+        >>> import numpy as np
+        >>> x = np.array([1.0, np.nan, np.inf, -2.0, 3.0], np.float32)
+        >>> y, report = sanitize(x, "clamp")
+        >>> y.tolist(), report.describe()
+        ([1.0, 0.0, 3.0, 0.0, 3.0], '1 NaN, 1 +Inf, 0 -Inf, 1 negative')
+    """
+    _check_policy(policy)
+    arr = np.asarray(radiance)
+    if not np.issubdtype(arr.dtype, np.floating):
+        negative = (
+            arr < 0 if np.issubdtype(arr.dtype, np.signedinteger) else np.zeros(arr.shape, bool)
+        )
+        nan = posinf = neginf = np.zeros(arr.shape, bool)
+    else:
+        nan = np.isnan(arr)
+        posinf = np.isposinf(arr)
+        neginf = np.isneginf(arr)
+        negative = arr < 0  # NaN compares False; -Inf is counted as -Inf only
+        negative &= ~neginf
+    counts = {
+        "num_nan": int(nan.sum()),
+        "num_posinf": int(posinf.sum()),
+        "num_neginf": int(neginf.sum()),
+        "num_negative": int(negative.sum()),
+    }
+    if sum(counts.values()) == 0:
+        return arr, SanitizeReport(**counts, policy=policy)
+    if policy == "raise":
+        report = SanitizeReport(**counts, policy=policy)
+        raise NonFiniteError(
+            f'`{name}` holds {report.describe()} value(s). Pass `sanitize="zero"` (set them to 0) '
+            'or `sanitize="clamp"` (+Inf -> largest finite value, the rest -> 0), '
+            "or repair the source."
+        )
+    if policy == "zero":
+        replacement = 0.0
+    elif policy == "clamp":
+        finite = arr[np.isfinite(arr)]
+        replacement = float(finite.max()) if finite.size else 0.0
+        replacement = max(replacement, 0.0)
+    else:  # pragma: no cover - _check_policy rejected everything else
+        assert_never(policy)
+    out = arr.copy()
+    out[nan | neginf | negative] = 0
+    out[posinf] = replacement
+    report = SanitizeReport(**counts, policy=policy, posinf_replacement=replacement)
+    logger.info("sanitized %s with policy %r: %s", name, policy, report.describe())
+    return out, report
