@@ -42,7 +42,7 @@ def tests(session: nox.Session) -> None:
 @nox.session
 def lint(session: nox.Session) -> None:
     """ruff check + format check over the whole tree."""
-    session.install("ruff==0.14.5")
+    session.install("ruff==0.17.6")
     session.run("ruff", "check", ".")
     session.run("ruff", "format", "--check", ".")
 
@@ -52,7 +52,8 @@ def typecheck(session: nox.Session) -> None:
     """pyright over the packages that are built (list grows with them)."""
     _install(session, "torch==2.13.0", "numpy==1.26.4")
     _install(session, "-e", "packages/gaffer-envmap[hdr]", "pyright==1.1.408")
-    session.run("pyright", "packages/gaffer-envmap/src")
+    python = str(Path(session.virtualenv.location) / "bin" / "python")
+    session.run("pyright", "--pythonpath", python, "packages/gaffer-envmap/src")
 
 
 @nox.session
@@ -70,10 +71,23 @@ def wheels(session: nox.Session) -> None:
         # torch first, pinned, so the resolver never reaches for a CUDA build (environment.md).
         session.run(py, "-m", "pip", "install", "-q", *CONSTRAINTS, "torch==2.13.0", external=True)
         session.run(
-            py, "-m", "pip", "install", "-q", *CONSTRAINTS, "--find-links", str(dist), pkg,
+            py,
+            "-m",
+            "pip",
+            "install",
+            "-q",
+            *CONSTRAINTS,
+            "--find-links",
+            str(dist),
+            pkg,
             external=True,
         )
-        session.run(py, "-c", f"import {module}; print({module}.__name__, {module}.__version__)", external=True)
+        session.run(
+            py,
+            "-c",
+            f"import {module}; print({module}.__name__, {module}.__version__)",
+            external=True,
+        )
         shutil.rmtree(venv_dir, ignore_errors=True)
 
 
@@ -101,10 +115,17 @@ def docs(session: nox.Session) -> None:
     """Sphinx site with warnings as errors; the conventions figure is generated from code."""
     _install(session, "torch==2.13.0", "numpy==1.26.4")
     _install(
-        session, "-e", "packages/gaffer-envmap[hdr]", "matplotlib==3.11.2",
-        "sphinx>=8", "furo>=2024.8.6", "myst-parser>=4",
+        session,
+        "-e",
+        "packages/gaffer-envmap[hdr]",
+        "matplotlib==3.11.2",
+        "sphinx>=8",
+        "furo>=2024.8.6",
+        "myst-parser>=4",
     )
-    session.run("sphinx-build", "-n", "-T", "-W", "--keep-going", "-b", "html", "docs", "docs/_build/html")
+    session.run(
+        "sphinx-build", "-n", "-T", "-W", "--keep-going", "-b", "html", "docs", "docs/_build/html"
+    )
 
 
 if __name__ == "__main__":

@@ -19,8 +19,6 @@ GPU; without it the JSON says `"cuda": "unavailable"`.
 Run: `python benchmarks/bench_envmap_preprocess.py [--quick] [--update-baseline]`.
 """
 
-import io
-import math
 import sys
 import tempfile
 from collections.abc import Callable
@@ -183,7 +181,9 @@ def scenarios_for(quick: bool) -> list[Scenario]:
     return out
 
 
-def measure(scenarios: list[Scenario], data: Data, reps: int, min_rep_s: float) -> dict[str, list[float]]:
+def measure(
+    scenarios: list[Scenario], data: Data, reps: int, min_rep_s: float
+) -> tuple[dict[str, list[float]], dict[str, int]]:
     """maps/s per repetition for every scenario; repetitions interleaved, order rotated each time."""
     runners = {s.name: make_runner(s, data) for s in scenarios}
     syncs = {s.name: (torch.cuda.synchronize if s.device == "cuda" else None) for s in scenarios}
@@ -328,8 +328,9 @@ def main(argv: list[str] | None = None) -> int:
         mps = r["maps_per_s"]
         base = base_rates.get(r["name"])
         base_s = f"{base:10.1f}" if base else f"{'-':>10s}"
+        rng_s = f"[{mps['min']:.1f}, {mps['max']:.1f}]"
         print(
-            f"{r['name']:34s} {mps['median']:14.1f} {f'[{mps['min']:.1f}, {mps['max']:.1f}]':>22s} "
+            f"{r['name']:34s} {mps['median']:14.1f} {rng_s:>22s} "
             f"{r['ratio_vs_theirs']['median']:9.2f} {base_s}"
         )
     print(f"targets: {targets}")

@@ -47,7 +47,9 @@ import pytest
 
 pytestmark = [
     pytest.mark.blender,
-    pytest.mark.skipif(importlib.util.find_spec("bpy") is None, reason="needs bpy (gaffer-data[render])"),
+    pytest.mark.skipif(
+        importlib.util.find_spec("bpy") is None, reason="needs bpy (gaffer-data[render])"
+    ),
 ]
 
 OpenEXR = pytest.importorskip("OpenEXR")
@@ -87,11 +89,22 @@ def _synthetic_world(height: int, width: int, *, sharp: bool) -> np.ndarray:
     return env.astype(np.float32)
 
 
-def _mark_direction(img: np.ndarray, dirs: np.ndarray, channel: int, *, sharp: bool) -> np.ndarray:
-    """Solid-angle-weighted centroid direction of one mark, found without any prior on where it is."""
+def _mark_direction(
+    img: np.ndarray,
+    dirs: np.ndarray,
+    channel: int,
+    *,
+    sharp: bool,
+    pixel_weight: np.ndarray | None = None,
+) -> np.ndarray:
+    """Solid-angle-weighted centroid direction of one mark, found without any prior on where it is.
+
+    `dirs`: each pixel's direction; `pixel_weight`: each pixel's solid angle (default: a lat-long grid's)."""
     value = img[..., channel].astype(np.float64)
     weight = (value > 2.0).astype(float) if sharp else np.clip(value - 1.0, 0.0, None)
-    weight = weight * solid_angle(img.shape[0], img.shape[1])
+    if pixel_weight is None:
+        pixel_weight = solid_angle(img.shape[0], img.shape[1])
+    weight = weight * pixel_weight
     if weight.sum() <= 0:
         return np.full(3, np.nan)
     m = (weight[..., None] * dirs).sum(axis=(0, 1))
@@ -125,10 +138,16 @@ def _run_worker(tmp_path: Path, job: dict) -> dict:
     job_file.write_text(json.dumps(job))
     start = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, str(WORKER), str(job_file)], capture_output=True, text=True, timeout=300, check=False
+        [sys.executable, str(WORKER), str(job_file)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
     )
     if proc.returncode != 0:
-        raise AssertionError(f"bpy worker failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
+        raise AssertionError(
+            f"bpy worker failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+        )
     result = json.loads((tmp_path / "result.json").read_text())
     result["wall_seconds"] = time.perf_counter() - start
     return result
@@ -149,45 +168,136 @@ def _to_ours(blender_pano: np.ndarray) -> np.ndarray:
     return np.roll(blender_pano, -blender_pano.shape[1] // 4, axis=1)
 
 
+def _source_pixel(dirs_world: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fractional (column, row) in a "blender" map, pixel centres at integers."""
+    u, v = direction_to_uv(dirs_world, "blender")
+    return u * width - 0.5, v * height - 0.5
+
+
+def _bilinear_cycles_model(env: np.ndarray, dirs_world: np.ndarray) -> np.ndarray:
+    """Bilinear lookup as Cycles' Environment Texture (Linear) does it: periodic in u AND in v, i.e. above
+    the top row it blends towards the BOTTOM row (the opposite pole), where the physically right neighbour
+    (what rotate_to_camera uses) is the top row turned by half."""
+    he, we = env.shape[:2]
+    x, y = _source_pixel(dirs_world, he, we)
+    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+
+    def at(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+        return env[r % he, c % we].astype(np.float64)
+
+    top = at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx
+    bottom = at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx
+    return top * (1 - fy) + bottom * fy
+
+
 # --------------------------------------------------------------------------------------------------------
 # 1. World convention
+
+PERSP_SIZE, PERSP_FOV_DEG = 32, 40.0  # 1.25 degrees per pixel
+
+
+def _perspective_dirs(
+    size: int, fov_deg: float, c2w_rotation: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """World directions `[S, S, 3]` of the pixel-centre rays of a square Blender perspective camera (x right,
+    y up, looks along -z; horizontal field of view `fov_deg`), and each pixel's relative solid angle."""
+    t = math.tan(math.radians(fov_deg) / 2)
+    s = (2 * (np.arange(size) + 0.5) / size - 1) * t
+    x, y = np.meshgrid(s, -s)  # row 0 = top of the image = camera +y
+    d = np.stack([x, y, -np.ones_like(x)], axis=-1)
+    norm = np.linalg.norm(d, axis=-1)
+    return (d / norm[..., None]) @ c2w_rotation.T, norm**-3
+
+
+def _mirror_y(d: np.ndarray) -> np.ndarray:
+    return d * np.array([1.0, -1.0, 1.0])
 
 
 def test_world_convention_matches_blender_environment_texture(tmp_path: Path) -> None:
     env = _synthetic_world(H, W, sharp=True)
     _write_exr(tmp_path / "env.exr", env)
-    result = _run_worker(tmp_path, {"renders": [{
-        "env": str(tmp_path / "env.exr"), "out": str(tmp_path / "pano.exr"), "width": W, "height": H,
-        "rotation": WORLD_PANO_ROTATION.tolist(), "interpolation": "Closest",
-    }]})
+    renders = [
+        {
+            "env": str(tmp_path / "env.exr"),
+            "out": str(tmp_path / "pano.exr"),
+            "width": W,
+            "height": H,
+            "rotation": WORLD_PANO_ROTATION.tolist(),
+            "interpolation": "Closest",
+        }
+    ]
+    # Independent anchor: perspective cameras at the origin looking along each mark's direction (and along
+    # its mirror image y -> -y). Their rays are fixed by matrix_world alone, no lat-long convention involved.
+    aims = [
+        (kind, channel, _direction(az, el) if kind == "at" else _mirror_y(_direction(az, el)))
+        for channel, az, el in MARKS
+        for kind in ("at", "mirror")
+    ]
+    # A camera at -aim looking at the origin looks along aim; matrix_world's rotation is the transpose.
+    c2ws = [look_at_w2c_blender(-aim).rotation.T for _, _, aim in aims]
+    renders += [
+        {
+            "env": str(tmp_path / "env.exr"),
+            "out": str(tmp_path / f"persp{k}.exr"),
+            "width": PERSP_SIZE,
+            "height": PERSP_SIZE,
+            "rotation": c2w.tolist(),
+            "interpolation": "Linear",
+            "camera": "PERSP",
+            "fov_deg": PERSP_FOV_DEG,
+        }
+        for k, c2w in enumerate(c2ws)
+    ]
+    result = _run_worker(tmp_path, {"renders": renders})
     info = result["renders"][0]
     assert info["image_is_float"], info
-    render = _read_exr(tmp_path / "pano.exr")
-    assert render.shape == env.shape
+    print(f"world: worker {result['wall_seconds']:.1f} s for {len(renders)} renders")
 
-    # Pixel for pixel: Closest interpolation + point samples at pixel centres reproduce the texels.
-    err = _rel_rms(render, env)
-    print(f"world: rel RMS {err:.3g}, max abs {np.abs(render - env).max():.3g}, worker {result['wall_seconds']:.1f} s")
+    # (a) Equirect camera with Euler (90, 0, -90): pixel for pixel the map (Closest interpolation + point
+    # samples at pixel centres reproduce the texels).
+    pano = _read_exr(tmp_path / "pano.exr")
+    assert pano.shape == env.shape
+    err = _rel_rms(pano, env)
+    print(f"  panorama: rel RMS {err:.3g}, max abs {np.abs(pano - env).max():.3g}")
     assert err < 1e-5
-    assert np.abs(render - env).max() < 1e-4
-
-    # Marks (found without priors) sit where our "blender" convention put them.
-    dirs = direction_grid(H, W, "blender")
+    assert np.abs(pano - env).max() < 1e-4
+    # The same camera's pixel directions from the Cycles formulas equal our "blender" grid.
+    cycles_world_dirs = _blender_pano_camera_dirs(H, W) @ WORLD_PANO_ROTATION.T
+    assert np.abs(cycles_world_dirs - direction_grid(H, W, "blender")).max() < 1e-12
     for channel, az, el in MARKS:
-        found = _mark_direction(render, dirs, channel, sharp=True)
-        angle = _angle_deg(found, _direction(az, el))
-        print(f"  mark {channel} at (az {az}, el {el}): off by {angle:.3f} deg")
+        angle = _angle_deg(
+            _mark_direction(pano, cycles_world_dirs, channel, sharp=True), _direction(az, el)
+        )
+        print(f"  panorama mark {channel} at (az {az}, el {el}): off by {angle:.3f} deg")
         assert angle < 0.5 * PIXEL_DEG
 
-    # Negative controls: a mirrored map (u -> 1 - u, i.e. y -> -y), an upside-down map and a map turned by
-    # a quarter must all disagree with the render, and the marks of the mirrored map must be far away.
-    mirrored = env[:, ::-1]
-    assert _rel_rms(render, mirrored) > 0.1
-    assert _rel_rms(render, env[::-1]) > 0.1
-    assert _rel_rms(render, np.roll(env, W // 4, axis=1)) > 0.1
-    for channel, az, el in MARKS:
-        wrong = _angle_deg(_mark_direction(mirrored, dirs, channel, sharp=True), _direction(az, el))
-        assert wrong > 10 * PIXEL_DEG, (channel, wrong)
+    # (b) Perspective views: every pixel equals the map looked up (bilinear, our direction_to_uv) along
+    # its ray, and each mark sits at the image centre.
+    for k, ((kind, channel, aim), c2w) in enumerate(zip(aims, c2ws)):
+        view = _read_exr(tmp_path / f"persp{k}.exr")
+        dirs, pixel_weight = _perspective_dirs(PERSP_SIZE, PERSP_FOV_DEG, c2w)
+        model = _bilinear_cycles_model(env, dirs)
+        found = _mark_direction(view, dirs, channel, sharp=True, pixel_weight=pixel_weight)
+        angle = _angle_deg(found, aim)
+        err_view = _rel_rms(view, model)
+        print(
+            f"  perspective {kind} mark {channel}: rel RMS vs our lookup {err_view:.3g}, "
+            f"max abs {np.abs(view - model).max():.3g}, mark off by {angle:.3f} deg"
+        )
+        assert err_view < 2e-3
+        # Negative control: the mirrored map looked up along the same rays does not match.
+        assert _rel_rms(view, _bilinear_cycles_model(env[:, ::-1], dirs)) > 0.1
+        if kind == "at":
+            # The disc is rasterised on 2.8-degree texels: its centroid is good to about half a texel.
+            assert angle < 0.5 * PIXEL_DEG
+        else:  # looking at the mirror image of a mark: it is out of view (>= 40 deg away)
+            assert angle > 10.0
+
+    # Negative controls on the panorama: mirrored (u -> 1 - u, i.e. y -> -y), upside down, a quarter turn.
+    assert _rel_rms(pano, env[:, ::-1]) > 0.1
+    assert _rel_rms(pano, env[::-1]) > 0.1
+    assert _rel_rms(pano, np.roll(env, W // 4, axis=1)) > 0.1
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -216,7 +326,11 @@ def test_track_to_camera_matches_orbit_w2c_blender(tmp_path: Path) -> None:
     poses = [orbit_w2c_blender(az, el, dist) for az, el, dist, _ in ORBITS]
     # Exactly above / below the target (no horizontal offset at all): Blender's roll there.
     poles = [np.array([0.0, 0.0, 2.0]), np.array([0.0, 0.0, -2.0])]
-    locations = [p.camera_position_world.tolist() for p in poses] + [p.tolist() for p in poles]
+    # Locations from the documented geometry (azimuth counter-clockwise from +x seen from above, elevation
+    # above the horizon), not from the pose under test.
+    locations = [(dist * _direction(az, el)).tolist() for az, el, dist, _ in ORBITS] + [
+        p.tolist() for p in poles
+    ]
     tolerances = [tol for *_, tol in ORBITS] + [1e-5, 1e-5]
     result = _run_worker(tmp_path, {"track_to": [{"location": loc} for loc in locations]})
     got = result["track_to"]
@@ -253,19 +367,28 @@ def test_track_to_camera_matches_orbit_w2c_blender(tmp_path: Path) -> None:
 def test_track_to_at_the_pole_follows_azimuth(tmp_path: Path) -> None:
     cases = [(45.0, 90.0, 2.0), (200.0, 90.0, 2.0), (45.0, -90.0, 2.0)]
     poses = [orbit_w2c_blender(az, el, dist) for az, el, dist in cases]
-    result = _run_worker(tmp_path, {"track_to": [{"location": p.camera_position_world.tolist()} for p in poses]})
+    result = _run_worker(
+        tmp_path, {"track_to": [{"location": p.camera_position_world.tolist()} for p in poses]}
+    )
     for (az, _el, _d), item, pose in zip(cases, result["track_to"], poses):
         w2c = _w2c_from_matrix_world(item["matrix_world"])
         a = math.radians(az)
-        assert np.allclose(w2c[0, :3], [-math.sin(a), math.cos(a), 0.0], atol=1e-5)  # Blender's right
+        blender_right = w2c[0, :3]
+        assert np.allclose(blender_right, [-math.sin(a), math.cos(a), 0.0], atol=1e-5)
         assert np.abs(w2c - pose.matrix).max() < 1e-5
 
 
 # --------------------------------------------------------------------------------------------------------
 # 3. Camera-frame rotation (rotate_to_camera) against a panoramic camera with the pose's rotation
 
-CAMERA_ORBITS = ((0.0, 0.0), (37.0, 25.0), (160.0, -40.0), (285.0, 70.0), (100.0, -85.0), (225.0, 10.0))
-# (No azimuth of 90 or 270: those poses are half-turns, R == R^T, which would defeat the inverse-rotation control.)
+CAMERA_ORBITS = (
+    (0.0, 0.0),
+    (37.0, 25.0),
+    (160.0, -40.0),
+    (285.0, 70.0),
+    (330.0, -75.0),
+    (225.0, 10.0),
+)
 
 
 def test_blender_panorama_layout_is_our_layout_rolled_by_a_quarter() -> None:
@@ -274,47 +397,37 @@ def test_blender_panorama_layout_is_our_layout_rolled_by_a_quarter() -> None:
     ours = direction_grid(H, W, "neural-gaffer-camera")
     assert np.abs(_to_ours(blender) - ours).max() < 1e-12
     # Fingerprint of Blender's panorama in the camera frame: centre = view direction -z, top = +y.
-    assert np.allclose(blender[H // 2 - 1 : H // 2 + 1, W // 2 - 1 : W // 2 + 1].mean(axis=(0, 1)), [0, 0, -1], atol=2e-3)
+    assert np.allclose(
+        blender[H // 2 - 1 : H // 2 + 1, W // 2 - 1 : W // 2 + 1].mean(axis=(0, 1)),
+        [0, 0, -1],
+        atol=2e-3,
+    )
     assert blender[0, :, 1].min() > 0.99
     assert np.abs(blender - ours).max() > 1.0  # not the same layout without the roll
-
-
-def _source_pixel(dirs_world: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Fractional (column, row) in a "blender" map, pixel centres at integers."""
-    u, v = direction_to_uv(dirs_world, "blender")
-    return u * width - 0.5, v * height - 0.5
-
-
-def _bilinear_cycles_model(env: np.ndarray, dirs_world: np.ndarray) -> np.ndarray:
-    """Bilinear lookup as Cycles' Environment Texture (Linear) does it: periodic in u AND in v, i.e. above
-    the top row it blends towards the BOTTOM row (the opposite pole), where the physically right neighbour
-    (what rotate_to_camera uses) is the top row turned by half."""
-    he, we = env.shape[:2]
-    x, y = _source_pixel(dirs_world, he, we)
-    x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
-    fx, fy = (x - x0)[..., None], (y - y0)[..., None]
-
-    def at(r: np.ndarray, c: np.ndarray) -> np.ndarray:
-        return env[r % he, c % we].astype(np.float64)
-
-    top = at(y0, x0) * (1 - fx) + at(y0, x0 + 1) * fx
-    bottom = at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx
-    return top * (1 - fy) + bottom * fy
 
 
 def test_rotate_to_camera_matches_blender_panorama_in_camera_frame(tmp_path: Path) -> None:
     env = _synthetic_world(H, W, sharp=False)
     _write_exr(tmp_path / "env.exr", env)
     poses = [orbit_w2c_blender(az, el, 2.0) for az, el in CAMERA_ORBITS]
-    renders = [{
-        "env": str(tmp_path / "env.exr"), "out": str(tmp_path / f"cam{i}.exr"), "width": W, "height": H,
-        # matrix_world rotation = camera axes in the world = (world -> camera)^T; location = origin.
-        "rotation": pose.rotation.T.tolist(), "interpolation": "Linear",
-    } for i, pose in enumerate(poses)]
+    renders = [
+        {
+            "env": str(tmp_path / "env.exr"),
+            "out": str(tmp_path / f"cam{i}.exr"),
+            "width": W,
+            "height": H,
+            # matrix_world rotation = camera axes in the world = (world -> camera)^T; location = origin.
+            "rotation": pose.rotation.T.tolist(),
+            "interpolation": "Linear",
+        }
+        for i, pose in enumerate(poses)
+    ]
     result = _run_worker(tmp_path, {"renders": renders})
     print(f"camera frame: worker {result['wall_seconds']:.1f} s for {len(poses)} renders")
 
-    ours_all = rotate_to_camera(EnvironmentMap(radiance_linear=env), poses, filter="bilinear").numpy()[0]
+    ours_all = rotate_to_camera(
+        EnvironmentMap(radiance_linear=env), poses, filter="bilinear"
+    ).numpy()[0]
     cam_dirs_ours = direction_grid(H, W, "neural-gaffer-camera")
     cam_dirs_blender = _blender_pano_camera_dirs(H, W)
     for i, ((az, el), pose) in enumerate(zip(CAMERA_ORBITS, poses)):
@@ -337,22 +450,33 @@ def test_rotate_to_camera_matches_blender_panorama_in_camera_frame(tmp_path: Pat
         )
         assert err_away < 5e-4
         assert max_away < 5e-3
-        assert err_all < 5e-3
-        # The remaining polar differences are Cycles' v-wrap, reproduced exactly by the model.
+        # Pixels whose source point lies beyond the first/last row centre (at most half a row from a pole)
+        # differ by up to ~0.4 x (top row - bottom row): Cycles blends them with the OPPOSITE pole's row.
+        # The v-periodic model reproduces Blender everywhere, so that is the whole difference (a Cycles
+        # artefact; rotate_to_camera's cross-pole neighbour is the physically right one).
         assert err_model < 5e-3
 
         for channel, maz, mel in MARKS:
             want = pose.rotation @ _direction(maz, mel)  # camera-frame direction of the mark
-            in_blender = _angle_deg(_mark_direction(pano, cam_dirs_blender, channel, sharp=False), want)
-            in_rolled = _angle_deg(_mark_direction(rolled, cam_dirs_ours, channel, sharp=False), want)
+            in_blender = _angle_deg(
+                _mark_direction(pano, cam_dirs_blender, channel, sharp=False), want
+            )
+            in_rolled = _angle_deg(
+                _mark_direction(rolled, cam_dirs_ours, channel, sharp=False), want
+            )
             in_ours = _angle_deg(_mark_direction(ours, cam_dirs_ours, channel, sharp=False), want)
-            print(f"    mark {channel}: blender {in_blender:.2f}, rolled {in_rolled:.2f}, ours {in_ours:.2f} deg")
+            print(
+                f"    mark {channel}: blender {in_blender:.2f}, rolled {in_rolled:.2f}, ours {in_ours:.2f} deg"
+            )
             assert max(in_blender, in_rolled, in_ours) < 0.5 * PIXEL_DEG
 
         # Negative controls: no roll, the roll the other way, a mirrored layout, and the inverse rotation
-        # (camera -> world used as world -> camera) all disagree.
+        # (camera -> world used as world -> camera) all disagree. The last one only means something where
+        # R is far from symmetric (orbit poses looking nearly straight up or at azimuth 90/270 are close
+        # to half-turns, R ~ R^T).
         assert _rel_rms(pano, ours) > 0.1
         assert _rel_rms(np.roll(pano, W // 4, axis=1), ours) > 0.1
         assert _rel_rms(rolled[:, ::-1], ours) > 0.1
-        inverse = rotate_to_camera(env, pose.rotation.T, filter="bilinear").numpy()[0, 0]
-        assert _rel_rms(rolled, inverse) > 0.1
+        if np.abs(pose.rotation - pose.rotation.T).max() > 0.5:
+            inverse = rotate_to_camera(env, pose.rotation.T, filter="bilinear").numpy()[0, 0]
+            assert _rel_rms(rolled, inverse) > 0.1

@@ -65,7 +65,9 @@ def test_blender_formula_matches_cycles_source() -> None:
     d = rng.normal(size=(500, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     u, v = direction_to_uv(d, "blender")
-    np.testing.assert_allclose(u, np.mod(0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi), 1), atol=1e-12)
+    np.testing.assert_allclose(
+        u, np.mod(0.5 - np.arctan2(d[:, 1], d[:, 0]) / (2 * np.pi), 1), atol=1e-12
+    )
     np.testing.assert_allclose(v, np.arccos(d[:, 2]) / np.pi, atol=1e-12)
 
 
@@ -93,11 +95,17 @@ def test_conversion_is_exact_and_physical(src: str, dst: str) -> None:
     """A -> B keeps every pixel's physical direction (through Blender's world), bit for bit, and B -> A inverts."""
     rng = np.random.default_rng(2)
     he = 8
-    env = EnvironmentMap(radiance_linear=rng.random((he, 2 * he, 3), dtype=np.float32), convention=src)
-    if CONVENTIONS[src].up != CONVENTIONS[dst].up and np.dot(
-        np.asarray(CONVENTIONS[src].to_blender) @ CONVENTIONS[src].up,
-        np.asarray(CONVENTIONS[dst].to_blender) @ CONVENTIONS[dst].up,
-    ) < 0.5:
+    env = EnvironmentMap(
+        radiance_linear=rng.random((he, 2 * he, 3), dtype=np.float32), convention=src
+    )
+    if (
+        CONVENTIONS[src].up != CONVENTIONS[dst].up
+        and np.dot(
+            np.asarray(CONVENTIONS[src].to_blender) @ CONVENTIONS[src].up,
+            np.asarray(CONVENTIONS[dst].to_blender) @ CONVENTIONS[dst].up,
+        )
+        < 0.5
+    ):
         pytest.skip("different up axes")
     out = convert_convention(env, dst)
     assert out.convention == dst
@@ -136,7 +144,10 @@ def test_corner_alignment_realignment_keeps_smooth_maps() -> None:
     corner = EnvironmentMap(radiance_linear=(1.5 + d).astype(np.float32), alignment="corner")
     centre = to_center_alignment(corner)
     assert centre.alignment == "center" and centre.height == he - 1
-    u_c, v_c = (np.arange(centre.width) + 0.5) / centre.width, (np.arange(centre.height) + 0.5) / centre.height
+    u_c, v_c = (
+        (np.arange(centre.width) + 0.5) / centre.width,
+        (np.arange(centre.height) + 0.5) / centre.height,
+    )
     uu, vv = np.meshgrid(u_c, v_c)
     expected = 1.5 + uv_to_direction(uu, vv, "blender")
     assert np.abs(centre.radiance_linear - expected).max() < 5e-3

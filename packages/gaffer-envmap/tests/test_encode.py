@@ -53,7 +53,9 @@ def test_default_shapes_range_and_broadcasting() -> None:
     poses = [orbit_w2c_blender(a, e) for a, e in POSES[:3]]
     enc = encode_lighting(maps, poses, size=48)
     assert enc.ldr.shape == enc.hdr.shape == (3, 3, 48, 48)
-    assert enc.ldr.dtype == torch.float32 and 0 <= float(enc.ldr.min()) and float(enc.hdr.max()) <= 1
+    assert (
+        enc.ldr.dtype == torch.float32 and 0 <= float(enc.ldr.min()) and float(enc.hdr.max()) <= 1
+    )
     one_map = encode_lighting(maps[0], poses, size=48)
     assert torch.equal(one_map.ldr[0], enc.ldr[0])
     with pytest.raises(ShapeError, match="one pose per map"):

@@ -22,7 +22,9 @@ from gaffer_envmap.testing import angle_deg, disc_sun_map
 @pytest.mark.parametrize("h_in,h_out", [(64, 32), (64, 16), (64, 24), (48, 64), (37, 11), (8, 1)])
 def test_resize_preserves_power_exactly(h_in: int, h_out: int) -> None:
     rng = np.random.default_rng(h_in * 100 + h_out)
-    env = EnvironmentMap(radiance_linear=(rng.random((h_in, 2 * h_in, 3)) ** 8 * 1e4).astype(np.float32))
+    env = EnvironmentMap(
+        radiance_linear=(rng.random((h_in, 2 * h_in, 3)) ** 8 * 1e4).astype(np.float32)
+    )
     out = resize_conservative(env, h_out)
     assert out.radiance_linear.shape == (h_out, 2 * h_out, 3)
     np.testing.assert_allclose(total_power(out), total_power(env), rtol=1e-6)
@@ -76,7 +78,9 @@ def test_yaw_is_a_counter_clockwise_turn() -> None:
 
 
 def test_augment_pool_is_the_papers_16() -> None:
-    env = EnvironmentMap(radiance_linear=np.random.default_rng(1).random((8, 16, 3), dtype=np.float32))
+    env = EnvironmentMap(
+        radiance_linear=np.random.default_rng(1).random((8, 16, 3), dtype=np.float32)
+    )
     pool = augment_pool(env, flips=True, yaw_steps=8)
     assert len(pool) == 16 and pool[0][0] == AugmentSpec(False, 0, 8)
     assert np.array_equal(pool[0][1].radiance_linear, env.radiance_linear)

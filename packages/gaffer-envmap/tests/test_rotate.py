@@ -18,7 +18,13 @@ from gaffer_envmap import (
     total_power,
     yaw_roll,
 )
-from gaffer_envmap.testing import angle_deg, disc_sun_map, reference_rotate, relative_rms, smooth_random_map
+from gaffer_envmap.testing import (
+    angle_deg,
+    disc_sun_map,
+    reference_rotate,
+    relative_rms,
+    smooth_random_map,
+)
 
 
 def _rz(deg: float) -> np.ndarray:
@@ -54,7 +60,9 @@ def test_yaw_by_whole_pixels_is_a_roll(rng: np.random.Generator, filt: str, k: i
     he = 32
     env = rng.random((he, 2 * he, 3)).astype(np.float32)
     # Camera turned by k pixels about world up: the lookup turns by -alpha, columns move left by k.
-    pose = np.concatenate([IDENTITY_LAYOUT_W2C.rotation @ _rz(360.0 * k / (2 * he)), np.zeros((3, 1))], 1)
+    pose = np.concatenate(
+        [IDENTITY_LAYOUT_W2C.rotation @ _rz(360.0 * k / (2 * he)), np.zeros((3, 1))], 1
+    )
     out = rotate_to_camera(env, pose, filter=filt, renormalize=False)[0, 0].numpy()
     assert np.array_equal(out, np.roll(env, -k, axis=1))
 
@@ -73,7 +81,9 @@ def test_full_turn_is_identity(rng: np.random.Generator) -> None:
     # A rotation by 2pi built numerically (Rodrigues), composed with the identity layout.
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     full = np.eye(3) + math.sin(2 * math.pi) * k + (1 - math.cos(2 * math.pi)) * k @ k
-    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ full, filter="bilinear")[0, 0].numpy()
+    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ full, filter="bilinear")[
+        0, 0
+    ].numpy()
     assert relative_rms(out, env) < 1e-5
 
 
@@ -89,7 +99,10 @@ def test_matches_plain_numpy_twin(rng: np.random.Generator) -> None:
 def test_seam_and_poles_are_continuous() -> None:
     """A smooth map stays smooth after half-pixel yaws and pole-crossing rotations (no zero padding)."""
     env = smooth_random_map(32, seed=5)
-    for pose in (IDENTITY_LAYOUT_W2C.rotation @ _rz(360 / 64 / 2), orbit_w2c_blender(10, 89.9).rotation):
+    for pose in (
+        IDENTITY_LAYOUT_W2C.rotation @ _rz(360 / 64 / 2),
+        orbit_w2c_blender(10, 89.9).rotation,
+    ):
         out = rotate_to_camera(env, pose, filter="bilinear")[0, 0].numpy()
         ref = reference_rotate(env.radiance_linear, pose, 32, 64)
         assert relative_rms(out, ref) < 1e-5
@@ -104,7 +117,9 @@ def test_disc_sun_power_and_direction(trial: int) -> None:
     env = disc_sun_map(64, sun, radius_deg=rng.uniform(1.0, 3.0), radiance=1000.0, sky=0.0)
     r = _random_rotation(rng)
     p_in = total_power(env)
-    out = rotate_to_camera(env, r, height=32, filter="area", supersample=2, renormalize=True)[0, 0].numpy()
+    out = rotate_to_camera(env, r, height=32, filter="area", supersample=2, renormalize=True)[
+        0, 0
+    ].numpy()
     p_out = total_power(_cam(out))
     np.testing.assert_allclose(p_out, p_in, rtol=1e-6)
     m = first_moment(_cam(out))
@@ -117,10 +132,14 @@ def test_supersampling_reduces_unnormalised_power_error() -> None:
     for trial in range(10):
         rng = np.random.default_rng(100 + trial)
         sun = rng.normal(size=3)
-        env = disc_sun_map(64, sun / np.linalg.norm(sun), radius_deg=rng.uniform(1.0, 3.0), radiance=1000.0)
+        env = disc_sun_map(
+            64, sun / np.linalg.norm(sun), radius_deg=rng.uniform(1.0, 3.0), radiance=1000.0
+        )
         r = _random_rotation(rng)
         for ss in errors:
-            out = rotate_to_camera(env, r, height=32, supersample=ss, renormalize=False)[0, 0].numpy()
+            out = rotate_to_camera(env, r, height=32, supersample=ss, renormalize=False)[
+                0, 0
+            ].numpy()
             errors[ss].append(abs(total_power(_cam(out))[0] / total_power(env)[0] - 1))
     assert np.median(errors[4]) < 0.02
     assert np.mean(errors[4]) < 0.5 * np.mean(errors[1])
@@ -139,7 +158,9 @@ def test_inverse_rotation_recovers_band_limited_map(rng: np.random.Generator) ->
     r = _random_rotation(rng)
     cam = rotate_to_camera(env, r, filter="bilinear")[0, 0].numpy()
     # Back to the world: the camera map in the identity layout's frame, rotated by R^T.
-    back = rotate_to_camera(cam, IDENTITY_LAYOUT_W2C.rotation @ r.T @ IDENTITY_LAYOUT_W2C.rotation, filter="bilinear")
+    back = rotate_to_camera(
+        cam, IDENTITY_LAYOUT_W2C.rotation @ r.T @ IDENTITY_LAYOUT_W2C.rotation, filter="bilinear"
+    )
     assert relative_rms(back[0, 0].numpy(), env.radiance_linear) < 0.01
 
 
@@ -173,6 +194,8 @@ def test_bad_inputs_raise_named_errors() -> None:
     with pytest.raises(ShapeError):
         rotate_to_camera(np.ones((8, 8, 3), np.float32), np.eye(3))
     with pytest.raises(ShapeError, match="one pose per map"):
-        rotate_to_camera(np.ones((2, 8, 16, 3), np.float32), np.eye(3)[None].repeat(3, 0), pairing="zip")
+        rotate_to_camera(
+            np.ones((2, 8, 16, 3), np.float32), np.eye(3)[None].repeat(3, 0), pairing="zip"
+        )
     with pytest.raises(PoseError, match="NaN"):
         W2CBlender(np.full((3, 4), np.nan))

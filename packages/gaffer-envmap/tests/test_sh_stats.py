@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from gaffer_envmap import EnvironmentMap, describe, project_sh, rotate_to_camera, sh_basis
-from gaffer_envmap.sh import cosine_lobe_coefficients, irradiance, irradiance_brute_force
 from gaffer_envmap.poses import IDENTITY_LAYOUT_W2C
+from gaffer_envmap.sh import cosine_lobe_coefficients, irradiance, irradiance_brute_force
 from gaffer_envmap.testing import disc_sun_map, smooth_random_map
 
 
@@ -30,11 +30,17 @@ def test_basis_is_orthonormal_on_a_fine_grid() -> None:
 def test_band1_is_y_z_x() -> None:
     d = np.array([[0.3, -0.5, 0.81]])
     d /= np.linalg.norm(d)
-    np.testing.assert_allclose(sh_basis(d, 1)[0, 1:], math.sqrt(3 / (4 * math.pi)) * d[0, [1, 2, 0]], rtol=1e-12)
+    np.testing.assert_allclose(
+        sh_basis(d, 1)[0, 1:], math.sqrt(3 / (4 * math.pi)) * d[0, [1, 2, 0]], rtol=1e-12
+    )
 
 
 def test_cosine_lobe_coefficients() -> None:
-    np.testing.assert_allclose(cosine_lobe_coefficients(4), [math.pi, 2 * math.pi / 3, math.pi / 4, 0, -math.pi / 24], atol=1e-12)
+    np.testing.assert_allclose(
+        cosine_lobe_coefficients(4),
+        [math.pi, 2 * math.pi / 3, math.pi / 4, 0, -math.pi / 24],
+        atol=1e-12,
+    )
 
 
 def test_band_energies_are_rotation_invariant() -> None:
@@ -43,13 +49,15 @@ def test_band_energies_are_rotation_invariant() -> None:
     env = smooth_random_map(64, seed=1)
     r = _random_rotation(rng)
     # A world-frame rotation of the map: the camera-frame map of pose R0 R, read as a Blender map.
-    rotated = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ r, filter="area", supersample=3)[0, 0].numpy()
+    rotated = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ r, filter="area", supersample=3)[
+        0, 0
+    ].numpy()
     rot_env = EnvironmentMap(radiance_linear=rotated)
     c0, c1 = project_sh(env, 3), project_sh(rot_env, 3)
     np.testing.assert_allclose(c1[0], c0[0], rtol=2e-3)
     v0, v1 = c0[[3, 1, 2], 0], c1[[3, 1, 2], 0]  # (x, y, z) order of band 1
     np.testing.assert_allclose(v1, r @ v0, atol=3e-3 * np.linalg.norm(v0))  # E'(b) = E(r^T b)
-    for l in range(4):  # noqa: E741
+    for l in range(4):
         sl = slice(l * l, (l + 1) ** 2)
         np.testing.assert_allclose(np.linalg.norm(c1[sl]), np.linalg.norm(c0[sl]), rtol=2e-2)
 
@@ -66,7 +74,9 @@ def test_irradiance_matches_brute_force_for_smooth_light() -> None:
 
 def test_irradiance_of_constant_sky_is_pi() -> None:
     env = EnvironmentMap(radiance_linear=np.ones((32, 64, 3), np.float32))
-    np.testing.assert_allclose(irradiance(env, np.array([[0.0, 0, 1], [1, 0, 0]])), math.pi, rtol=1e-3)
+    np.testing.assert_allclose(
+        irradiance(env, np.array([[0.0, 0, 1], [1, 0, 0]])), math.pi, rtol=1e-3
+    )
 
 
 def test_describe_reports_power_and_direction() -> None:

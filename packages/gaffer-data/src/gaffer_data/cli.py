@@ -38,7 +38,9 @@ def _render(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     if args.backend != "local":
-        raise GafferDataError(f"`--backend`={args.backend!r} is not implemented yet; use `--backend local`.")
+        raise GafferDataError(
+            f"`--backend`={args.backend!r} is not implemented yet; use `--backend local`."
+        )
     objects = scan_objects(args.objects)
     pool = scan_envmaps(args.envmaps) if config.lightings > 0 else ()
     summary = render_dataset(objects, pool, args.out, config, options)
@@ -63,7 +65,9 @@ def _recipe(args: argparse.Namespace) -> int:
 def _filter(args: argparse.Namespace) -> int:
     from gaffer_data.filter.run import filter_objects
 
-    summary = filter_objects(args.src, args.out, rules_path=args.rules, classifier_path=args.classifier)
+    summary = filter_objects(
+        args.src, args.out, rules_path=args.rules, classifier_path=args.classifier
+    )
     print(f"accepted {summary.accepted} / {summary.total} objects -> {args.out}")
     return 0
 
@@ -133,7 +137,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--classifier", type=Path, default=None, help="trained classifier folder")
     f.set_defaults(func=_filter)
 
-    t = sub.add_parser("train-classifier", help="train the quality classifier from labelled objects")
+    t = sub.add_parser(
+        "train-classifier", help="train the quality classifier from labelled objects"
+    )
     t.add_argument("features", type=Path, help="a `filter` .jsonl manifest (features)")
     t.add_argument("labels", type=Path, help="CSV with columns object_id,label (1 good, 0 bad)")
     t.add_argument("--out", required=True, type=Path)
@@ -151,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the `gaffer-data` console script."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(
-        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s"
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s %(name)s: %(message)s",
     )
     try:
         return int(args.func(args))

@@ -23,7 +23,9 @@ _VIEW_TRANSFORMS = ("Filmic", "AgX", "Standard", "Khronos PBR Neutral", "Raw")
 
 def _check_range(name: str, lo: float, hi: float, *, min_lo: float | None = None) -> None:
     if not lo <= hi:
-        raise ConfigError(f"`{name}` is ({lo}, {hi}); the lower bound must not exceed the upper bound.")
+        raise ConfigError(
+            f"`{name}` is ({lo}, {hi}); the lower bound must not exceed the upper bound."
+        )
     if min_lo is not None and lo < min_lo:
         raise ConfigError(f"`{name}` starts at {lo}; it must be >= {min_lo}.")
 
@@ -57,7 +59,9 @@ class CameraConfig:
         _check_range("azimuth_deg", *self.azimuth_deg)
         _check_range("distance", *self.distance)
         if self.distance[0] <= 0.0:
-            raise ConfigError(f"`distance` starts at {self.distance[0]}; cameras need a distance > 0.")
+            raise ConfigError(
+                f"`distance` starts at {self.distance[0]}; cameras need a distance > 0."
+            )
 
 
 @dataclass(frozen=True, kw_only=True)

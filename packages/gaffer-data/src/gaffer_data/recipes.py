@@ -68,16 +68,24 @@ def scan_objects(src: str | Path) -> list[tuple[str, Path]]:
             except (json.JSONDecodeError, KeyError, AttributeError) as exc:
                 raise InputError(f"`{src}` line {n} is not a filter record ({exc!r}).") from exc
     elif src.is_dir():
-        files = sorted(p for p in src.rglob("*") if p.suffix.lower() in MESH_SUFFIXES and p.is_file())
+        files = sorted(
+            p for p in src.rglob("*") if p.suffix.lower() in MESH_SUFFIXES and p.is_file()
+        )
         pairs = [(object_id_from_path(p, src), p) for p in files]
     else:
-        raise InputError(f"`objects`={str(src)!r} is neither a folder nor a filter .jsonl manifest.")
+        raise InputError(
+            f"`objects`={str(src)!r} is neither a folder nor a filter .jsonl manifest."
+        )
     if not pairs:
-        raise InputError(f"`objects`={str(src)!r} holds no object (suffixes: {', '.join(MESH_SUFFIXES)}).")
+        raise InputError(
+            f"`objects`={str(src)!r} holds no object (suffixes: {', '.join(MESH_SUFFIXES)})."
+        )
     ids = [oid for oid, _ in pairs]
     dupes = sorted({i for i in ids if ids.count(i) > 1})
     if dupes:
-        raise InputError(f"`objects`={str(src)!r}: several files map to the ids {dupes[:5]}; rename them.")
+        raise InputError(
+            f"`objects`={str(src)!r}: several files map to the ids {dupes[:5]}; rename them."
+        )
     return sorted(pairs)
 
 
@@ -175,7 +183,13 @@ def build_default_recipe(
     if procedural > 0:
         if importlib.util.find_spec("bpy") is None:
             raise missing_extra("bpy", "render")
-        cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(objects / "procedural")]
+        cmd = [
+            sys.executable,
+            "-m",
+            "gaffer_data.render.procedural",
+            "--out",
+            str(objects / "procedural"),
+        ]
         cmd += ["--count", str(procedural), "--seed", str(seed)]
         result = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if result.returncode != 0:

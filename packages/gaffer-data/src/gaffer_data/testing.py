@@ -53,10 +53,15 @@ def read_exr(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def write_uniform_envmaps(folder: Path, colors: dict[str, tuple[float, float, float]], height: int = 8) -> Path:
+def write_uniform_envmaps(
+    folder: Path, colors: dict[str, tuple[float, float, float]], height: int = 8
+) -> Path:
     """Write one constant-colour `[height, 2*height]` EXR per {name: linear rgb}; returns `folder`."""
     for name, rgb in colors.items():
-        write_exr(folder / f"{name}.exr", np.broadcast_to(np.asarray(rgb, np.float32), (height, 2 * height, 3)))
+        write_exr(
+            folder / f"{name}.exr",
+            np.broadcast_to(np.asarray(rgb, np.float32), (height, 2 * height, 3)),
+        )
     return folder
 
 
@@ -78,7 +83,9 @@ def write_uv_sphere_obj(path: Path, rings: int = 16, segments: int = 32) -> Path
         theta = math.pi * i / rings
         for j in range(segments):
             phi = 2.0 * math.pi * j / segments
-            verts.append((math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)))
+            verts.append(
+                (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+            )
     for i in range(rings):
         for j in range(segments):
             a, b = i * segments + j + 1, i * segments + (j + 1) % segments + 1

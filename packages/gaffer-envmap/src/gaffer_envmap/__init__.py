@@ -4,7 +4,13 @@ Public API re-exported here; submodules hold one topic each (see the package REA
 """
 
 from gaffer_envmap._version import __version__
-from gaffer_envmap.augment import AugmentSpec, augment_pool, augment_specs, flip_horizontal, yaw_roll
+from gaffer_envmap.augment import (
+    AugmentSpec,
+    augment_pool,
+    augment_specs,
+    flip_horizontal,
+    yaw_roll,
+)
 from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
 from gaffer_envmap.conventions import (
     CONVENTIONS,
@@ -21,7 +27,6 @@ from gaffer_envmap.conventions import (
 )
 from gaffer_envmap.encode import LightingEncoding, encode_lighting, hdr_encode, ldr_encode
 from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
-from gaffer_envmap.io import read_envmap, write_envmap, write_png
 from gaffer_envmap.errors import (
     ConventionError,
     EnvmapReadError,
@@ -33,6 +38,7 @@ from gaffer_envmap.errors import (
     PoseError,
     ShapeError,
 )
+from gaffer_envmap.io import read_envmap, write_envmap, write_png
 from gaffer_envmap.poses import (
     IDENTITY_LAYOUT_W2C,
     C2WOpenCV,
@@ -87,8 +93,6 @@ __all__ = [
     "project_sh",
     "read_bundled_hdri",
     "read_envmap",
-    "write_envmap",
-    "write_png",
     "reconstruct_sh",
     "resize_conservative",
     "resize_conservative_torch",
@@ -99,5 +103,7 @@ __all__ = [
     "to_center_alignment",
     "total_power",
     "uv_to_direction",
+    "write_envmap",
+    "write_png",
     "yaw_roll",
 ]

@@ -69,10 +69,10 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
 
     Example:
         >>> import tempfile
-        >>> d = tempfile.mkdtemp()
-        >>> with atomic_path(f"{d}/out.txt") as tmp:
+        >>> d = Path(tempfile.mkdtemp())
+        >>> with atomic_path(d / "out.txt") as tmp:
         ...     _ = tmp.write_text("hello")
-        >>> open(f"{d}/out.txt").read()
+        >>> (d / "out.txt").read_text()
         'hello'
     """
     dest = Path(path)

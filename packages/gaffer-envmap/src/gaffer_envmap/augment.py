@@ -73,6 +73,8 @@ def augment_specs(flips: bool = True, yaw_steps: int = 8) -> list[AugmentSpec]:
     ]
 
 
-def augment_pool(env: EnvironmentMap, flips: bool = True, yaw_steps: int = 8) -> list[tuple[AugmentSpec, EnvironmentMap]]:
+def augment_pool(
+    env: EnvironmentMap, flips: bool = True, yaw_steps: int = 8
+) -> list[tuple[AugmentSpec, EnvironmentMap]]:
     """Every augmented copy of one map, with its spec (2 x 8 = 16 by default, as the paper)."""
     return [(spec, spec.apply(env)) for spec in augment_specs(flips, yaw_steps)]

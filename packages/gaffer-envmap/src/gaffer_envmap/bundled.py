@@ -25,7 +25,9 @@ def bundled_hdri(name: str) -> Path:
     """
     maps = bundled_hdris()
     if name not in maps:
-        raise EnvmapReadError(f"`name` {name!r} is not a bundled HDRI; choose one of {sorted(maps)}.")
+        raise EnvmapReadError(
+            f"`name` {name!r} is not a bundled HDRI; choose one of {sorted(maps)}."
+        )
     return maps[name]
 
 

@@ -28,7 +28,9 @@ def _load_w2c(path: str) -> W2CBlender:
     try:
         arr = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:
-        raise GafferEnvmapError(f"`--w2c` {path!r} could not be read as a .npy array: {exc}") from exc
+        raise GafferEnvmapError(
+            f"`--w2c` {path!r} could not be read as a .npy array: {exc}"
+        ) from exc
     return W2CBlender.from_array(arr)
 
 
@@ -51,22 +53,35 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_rotate(args: argparse.Namespace) -> int:
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
-    out = rotate_to_camera(env, pose, height=args.size, filter=args.filter, supersample=args.supersample, spin_deg=args.spin)
+    out = rotate_to_camera(
+        env,
+        pose,
+        height=args.size,
+        filter=args.filter,
+        supersample=args.supersample,
+        spin_deg=args.spin,
+    )
     write_envmap(args.dst, out[0, 0].numpy(), dtype="float32")
-    print(f"wrote {args.dst} ({out.shape[2]}x{out.shape[3]}, camera frame, layout neural-gaffer-camera)")
+    print(
+        f"wrote {args.dst} ({out.shape[2]}x{out.shape[3]}, camera frame, layout neural-gaffer-camera)"
+    )
     return 0
 
 
 def _cmd_encode(args: argparse.Namespace) -> int:
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
-    enc = encode_lighting(env, pose, size=args.size, compat=args.compat, spin_deg=args.spin, quantize=True)
+    enc = encode_lighting(
+        env, pose, size=args.size, compat=args.compat, spin_deg=args.spin, quantize=True
+    )
     ldr, hdr = enc.to_uint8()
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_png(out / "ldr.png", ldr[0])
     write_png(out / "hdr.png", hdr[0])
-    print(f"wrote {out / 'ldr.png'} and {out / 'hdr.png'} ({args.size}x{args.size}, compat={args.compat})")
+    print(
+        f"wrote {out / 'ldr.png'} and {out / 'hdr.png'} ({args.size}x{args.size}, compat={args.compat})"
+    )
     return 0
 
 
@@ -80,7 +95,6 @@ def _cmd_augment(args: argparse.Namespace) -> int:
         write_envmap(out / f"{stem}_{spec.tag}.exr", aug)
     print(f"wrote {len(pool)} maps to {out}")
     return 0
-
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -102,7 +116,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     t2 = time.perf_counter()
     ldr, hdr = enc.to_uint8()
     c_ldr, c_hdr = compat.to_uint8()
-    exposure = 0.18 / max(float(np.median(env.radiance_linear @ np.array([0.2126, 0.7152, 0.0722]))), 1e-6)
+    exposure = 0.18 / max(
+        float(np.median(env.radiance_linear @ np.array([0.2126, 0.7152, 0.0722]))), 1e-6
+    )
     write_png(out / "world.png", tonemap_preview(env.radiance_linear, exposure))
     rows = [[("world map (Blender layout)", tonemap_preview(env.radiance_linear, exposure))]]
     for k, pose in enumerate(poses):
@@ -110,46 +126,72 @@ def _cmd_demo(args: argparse.Namespace) -> int:
         view.mkdir(exist_ok=True)
         np.save(view / "w2c_blender.npy", pose.matrix)
         write_envmap(view / "camera_frame.exr", cam[k].numpy())
-        for name, img in (("ldr.png", ldr[k]), ("hdr.png", hdr[k]), ("compat_ldr.png", c_ldr[k]), ("compat_hdr.png", c_hdr[k])):
+        for name, img in (
+            ("ldr.png", ldr[k]),
+            ("hdr.png", hdr[k]),
+            ("compat_ldr.png", c_ldr[k]),
+            ("compat_hdr.png", c_hdr[k]),
+        ):
             write_png(view / name, img)
-        rows.append([
-            (f"view {k}: camera frame", tonemap_preview(cam[k].numpy(), exposure)),
-            ("E_L default", ldr[k]), ("E_H default", hdr[k]),
-            ("E_L compat", c_ldr[k]), ("E_H compat", c_hdr[k]),
-        ])
+        rows.append(
+            [
+                (f"view {k}: camera frame", tonemap_preview(cam[k].numpy(), exposure)),
+                ("E_L default", ldr[k]),
+                ("E_H default", hdr[k]),
+                ("E_L compat", c_ldr[k]),
+                ("E_H compat", c_hdr[k]),
+            ]
+        )
     write_png(out / "overview.png", contact_sheet(rows, cell=160))
     summary = {
-        "hdri": args.hdri, "source_shape": list(env.radiance_linear.shape), "views": len(poses),
-        "encode_default_s": round(t1 - t0, 4), "encode_compat_s": round(t2 - t1, 4),
+        "hdri": args.hdri,
+        "source_shape": list(env.radiance_linear.shape),
+        "views": len(poses),
+        "encode_default_s": round(t1 - t0, 4),
+        "encode_compat_s": round(t2 - t1, 4),
         "power_rgb": [float(x) for x in total_power(env)],
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"wrote {out / 'overview.png'}, {len(poses)} views under {out}/view_*/ ({json.dumps(summary)})")
+    print(
+        f"wrote {out / 'overview.png'}, {len(poses)} views under {out}/view_*/ ({json.dumps(summary)})"
+    )
     return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for docs and tests)."""
-    p = argparse.ArgumentParser(prog="gaffer-envmap", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="gaffer-envmap", description=(__doc__ or "").splitlines()[0])
     p.add_argument("-v", "--verbose", action="store_true")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add_src(sp: argparse.ArgumentParser, name: str = "src") -> None:
         sp.add_argument(name, help="environment map (.exr, .hdr, .png/.jpg), Blender convention")
-        sp.add_argument("--sanitize", choices=["raise", "zero", "clamp"], default="raise",
-                        help="what to do with NaN/Inf/negative pixels (default: refuse the map)")
+        sp.add_argument(
+            "--sanitize",
+            choices=["raise", "zero", "clamp"],
+            default="raise",
+            help="what to do with NaN/Inf/negative pixels (default: refuse the map)",
+        )
 
-    sp = sub.add_parser("info", help="size, range, NaN/Inf/negative counts, power, dominant light direction")
+    sp = sub.add_parser(
+        "info", help="size, range, NaN/Inf/negative counts, power, dominant light direction"
+    )
     sp.add_argument("map")
     sp.add_argument("--json", action="store_true")
     sp.set_defaults(func=_cmd_info)
 
-    sp = sub.add_parser("rotate", help="camera-frame map (layout neural-gaffer-camera) as float32 EXR")
+    sp = sub.add_parser(
+        "rotate", help="camera-frame map (layout neural-gaffer-camera) as float32 EXR"
+    )
     add_src(sp)
     sp.add_argument("dst")
     sp.add_argument("--w2c", required=True, help="3x4 or 4x4 Blender world-to-camera .npy")
-    sp.add_argument("--size", type=int, default=None, help="output height (width = 2*height); default: source")
-    sp.add_argument("--spin", type=float, default=0.0, help="extra turn of the light about world up, degrees")
+    sp.add_argument(
+        "--size", type=int, default=None, help="output height (width = 2*height); default: source"
+    )
+    sp.add_argument(
+        "--spin", type=float, default=0.0, help="extra turn of the light about world up, degrees"
+    )
     sp.add_argument("--filter", choices=["area", "bilinear"], default="area")
     sp.add_argument("--supersample", type=int, default=2)
     sp.set_defaults(func=_cmd_rotate)
@@ -158,8 +200,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_src(sp)
     sp.add_argument("--w2c", required=True, help="3x4 or 4x4 Blender world-to-camera .npy")
     sp.add_argument("--out-dir", required=True)
-    sp.add_argument("--compat", choices=["default", "neural-gaffer"], default="default",
-                    help="neural-gaffer: bit-compatible with the released checkpoint")
+    sp.add_argument(
+        "--compat",
+        choices=["default", "neural-gaffer"],
+        default="default",
+        help="neural-gaffer: bit-compatible with the released checkpoint",
+    )
     sp.add_argument("--size", type=int, default=256)
     sp.add_argument("--spin", type=float, default=0.0)
     sp.set_defaults(func=_cmd_encode)
@@ -171,9 +217,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--yaw-steps", type=int, default=8)
     sp.set_defaults(func=_cmd_augment)
 
-    sp = sub.add_parser("demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures")
+    sp = sub.add_parser(
+        "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"
+    )
     sp.add_argument("--out", default="out/demo")
-    sp.add_argument("--hdri", default="sunset", help="bundled HDRI name (city, courtyard, forest, ...)")
+    sp.add_argument(
+        "--hdri", default="sunset", help="bundled HDRI name (city, courtyard, forest, ...)"
+    )
     sp.add_argument("--size", type=int, default=256)
     sp.set_defaults(func=_cmd_demo)
     return p
@@ -182,7 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s"
+    )
     try:
         return int(args.func(args))
     except GafferEnvmapError as exc:

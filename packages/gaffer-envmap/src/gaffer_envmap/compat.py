@@ -38,13 +38,18 @@ def _local_dirs(height: int, width: int) -> Tensor:
     theta = math.pi / 2 - (torch.arange(height, dtype=torch.float64) + 0.5) * math.pi / height
     phi = math.pi - (torch.arange(width, dtype=torch.float64) + 0.5) * 2 * math.pi / width
     th, ph = torch.meshgrid(theta, phi, indexing="ij")
-    return torch.stack([torch.cos(ph) * torch.cos(th), torch.sin(ph) * torch.cos(th), torch.sin(th)], -1).reshape(-1, 3)
+    return torch.stack(
+        [torch.cos(ph) * torch.cos(th), torch.sin(ph) * torch.cos(th), torch.sin(th)], -1
+    ).reshape(-1, 3)
 
 
 def spin_matrix_authors(spin_index: int, num_frames: int) -> Tensor:
     """Rz(-2 pi k / N) as the authors build it for turntable frame k of N (multiplied on the right)."""
     a = -2 * math.pi * spin_index / num_frames
-    return torch.tensor([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    return torch.tensor(
+        [[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]],
+        dtype=torch.float64,
+    )
 
 
 def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | None = None) -> Tensor:
@@ -57,7 +62,9 @@ def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | Non
     if spin is not None:
         m = m @ spin.to(m)
     d = _local_dirs(he, we).to(rotations.device)[None] @ m  # [B, N, 3]
-    theta = torch.arccos(d[..., 2].clamp(-1.0, 1.0))  # guards a NaN the authors could hit at |d_z| = 1 + eps
+    theta = torch.arccos(
+        d[..., 2].clamp(-1.0, 1.0)
+    )  # guards a NaN the authors could hit at |d_z| = 1 + eps
     phi = torch.atan2(d[..., 1], d[..., 0])
     grid = torch.stack([-phi / math.pi, 2 * theta / math.pi - 1], -1).clamp(-_CLAMP, _CLAMP)
     grid = grid.reshape(b, he, we, 2).to(torch.float32)
@@ -78,11 +85,15 @@ def encode_neural_gaffer(rotated: Tensor, size: int = 256) -> tuple[np.ndarray, 
             "zero; its HDR map is set to 0.",
             stacklevel=3,
         )
-    hdr = torch.where(peak > 0, log / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(log)).clip(0, 1)
+    hdr = torch.where(
+        peak > 0, log / torch.where(peak > 0, peak, torch.ones_like(peak)), torch.zeros_like(log)
+    ).clip(0, 1)
     ldr_u8 = torch.floor(ldr * 255).to(torch.uint8).cpu().numpy()
     hdr_u8 = torch.floor(hdr * 255).to(torch.uint8).cpu().numpy()
     return _pil_resize(ldr_u8, size), _pil_resize(hdr_u8, size)
 
 
 def _pil_resize(batch_u8: np.ndarray, size: int) -> np.ndarray:
-    return np.stack([np.asarray(Image.fromarray(img).resize((size, size), Image.BILINEAR)) for img in batch_u8])
+    return np.stack(
+        [np.asarray(Image.fromarray(img).resize((size, size), Image.Resampling.BILINEAR)) for img in batch_u8]
+    )

@@ -27,8 +27,8 @@ from typing import Literal
 
 import numpy as np
 
-from gaffer_envmap.errors import ConventionError, GafferEnvmapError, ShapeError
 from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
+from gaffer_envmap.errors import ConventionError, GafferEnvmapError, ShapeError
 
 Frame = Literal["world", "camera"]
 
@@ -74,7 +74,7 @@ class LatLongConvention:
         return np.stack([np.asarray(self.centre, float), self.left, np.asarray(self.up, float)])
 
 
-def _conv(name, up, centre, mirrored, alignment, frame, to_blender, source) -> LatLongConvention:  # noqa: ANN001
+def _conv(name, up, centre, mirrored, alignment, frame, to_blender, source) -> LatLongConvention:
     return LatLongConvention(
         name=name,
         up=up,
@@ -90,22 +90,86 @@ def _conv(name, up, centre, mirrored, alignment, frame, to_blender, source) -> L
 CONVENTIONS: dict[str, LatLongConvention] = {
     c.name: c
     for c in (
-        _conv("blender", (0, 0, 1), (1, 0, 0), False, "center", "world", _IDENTITY,
-              "Blender/Cycles direction_to_equirectangular: u = 0.5 - atan2(y, x)/2pi, z up"),
-        _conv("neural-gaffer-camera", (0, 1, 0), (1, 0, 0), False, "center", "camera", _IDENTITY,
-              "Neural Gaffer rotated map in Blender camera axes (x right, y up, -z forward)"),
-        _conv("threejs", (0, 1, 0), (1, 0, 0), False, "center", "world", _YUP_TO_BLENDER,
-              "three.js equirectUv: u = atan2(z, x)/2pi + 0.5, y up"),
-        _conv("mitsuba", (0, 1, 0), (0, 0, 1), False, "corner", "world", _YUP_TO_BLENDER,
-              "Mitsuba 3 envmap.cpp: u = atan2(x, -z)/2pi, y up (rows at the poles)"),
-        _conv("openexr", (0, 1, 0), (0, 0, 1), False, "corner", "world", _YUP_TO_BLENDER,
-              "OpenEXR `envmap` latlong / USD DomeLight(Y): lon = +pi at x = min, corner-aligned"),
-        _conv("skylibs", (0, 1, 0), (0, 0, -1), False, "center", "world", _YUP_TO_BLENDER,
-              "skylibs/envmap and nvdiffrec: u = 0.5 + atan2(x, -z)/2pi, y up"),
-        _conv("filament", (0, 1, 0), (0, 0, 1), True, "corner", "world", _YUP_TO_BLENDER,
-              "Filament cmgen toRectilinear: mirrored (chirality +1), y up"),
-        _conv("pbrt-v3", (0, 0, 1), (-1, 0, 0), True, "center", "world", _IDENTITY,
-              "pbrt-v3 InfiniteAreaLight: u = phi/2pi, phi = atan2(y, x) in [0, 2pi), left-handed"),
+        _conv(
+            "blender",
+            (0, 0, 1),
+            (1, 0, 0),
+            False,
+            "center",
+            "world",
+            _IDENTITY,
+            "Blender/Cycles direction_to_equirectangular: u = 0.5 - atan2(y, x)/2pi, z up",
+        ),
+        _conv(
+            "neural-gaffer-camera",
+            (0, 1, 0),
+            (1, 0, 0),
+            False,
+            "center",
+            "camera",
+            _IDENTITY,
+            "Neural Gaffer rotated map in Blender camera axes (x right, y up, -z forward)",
+        ),
+        _conv(
+            "threejs",
+            (0, 1, 0),
+            (1, 0, 0),
+            False,
+            "center",
+            "world",
+            _YUP_TO_BLENDER,
+            "three.js equirectUv: u = atan2(z, x)/2pi + 0.5, y up",
+        ),
+        _conv(
+            "mitsuba",
+            (0, 1, 0),
+            (0, 0, 1),
+            False,
+            "corner",
+            "world",
+            _YUP_TO_BLENDER,
+            "Mitsuba 3 envmap.cpp: u = atan2(x, -z)/2pi, y up (rows at the poles)",
+        ),
+        _conv(
+            "openexr",
+            (0, 1, 0),
+            (0, 0, 1),
+            False,
+            "corner",
+            "world",
+            _YUP_TO_BLENDER,
+            "OpenEXR `envmap` latlong / USD DomeLight(Y): lon = +pi at x = min, corner-aligned",
+        ),
+        _conv(
+            "skylibs",
+            (0, 1, 0),
+            (0, 0, -1),
+            False,
+            "center",
+            "world",
+            _YUP_TO_BLENDER,
+            "skylibs/envmap and nvdiffrec: u = 0.5 + atan2(x, -z)/2pi, y up",
+        ),
+        _conv(
+            "filament",
+            (0, 1, 0),
+            (0, 0, 1),
+            True,
+            "corner",
+            "world",
+            _YUP_TO_BLENDER,
+            "Filament cmgen toRectilinear: mirrored (chirality +1), y up",
+        ),
+        _conv(
+            "pbrt-v3",
+            (0, 0, 1),
+            (-1, 0, 0),
+            True,
+            "center",
+            "world",
+            _IDENTITY,
+            "pbrt-v3 InfiniteAreaLight: u = phi/2pi, phi = atan2(y, x) in [0, 2pi), left-handed",
+        ),
     )
 }
 CONVENTIONS["usd"] = CONVENTIONS["openexr"]
@@ -153,21 +217,27 @@ def direction_to_uv(dirs: np.ndarray, convention: str = "blender") -> tuple[np.n
     return np.mod(u, 1.0), np.arccos(cos_theta) / np.pi
 
 
-def pixel_center_uv(height: int, width: int, alignment: PixelAlignment = "center") -> tuple[np.ndarray, np.ndarray]:
+def pixel_center_uv(
+    height: int, width: int, alignment: PixelAlignment = "center"
+) -> tuple[np.ndarray, np.ndarray]:
     """u `[We]` and v `[He]` of pixel centres for a grid."""
     if alignment == "center":
         return (np.arange(width) + 0.5) / width, (np.arange(height) + 0.5) / height
     return np.arange(width) / max(width - 1, 1), np.arange(height) / max(height - 1, 1)
 
 
-def direction_grid(height: int, width: int, convention: str = "blender", alignment: PixelAlignment = "center") -> np.ndarray:
+def direction_grid(
+    height: int, width: int, convention: str = "blender", alignment: PixelAlignment = "center"
+) -> np.ndarray:
     """`[He, We, 3]` float64 unit directions of every pixel centre."""
     u, v = pixel_center_uv(height, width, alignment)
     uu, vv = np.meshgrid(u, v)
     return uv_to_direction(uu, vv, convention)
 
 
-def row_solid_angle(height: int, width: int | None = None, alignment: PixelAlignment = "center") -> np.ndarray:
+def row_solid_angle(
+    height: int, width: int | None = None, alignment: PixelAlignment = "center"
+) -> np.ndarray:
     """Solid angle `[He]` (steradians) of one pixel in each row; the grid sums to 4 pi.
 
     Solid angle is uniform in (phi, cos theta), so a row between polar angles a < b covers
@@ -182,7 +252,9 @@ def row_solid_angle(height: int, width: int | None = None, alignment: PixelAlign
     return (2 * np.pi / width) * (np.cos(edges[:-1]) - np.cos(edges[1:]))
 
 
-def solid_angle(height: int, width: int | None = None, alignment: PixelAlignment = "center") -> np.ndarray:
+def solid_angle(
+    height: int, width: int | None = None, alignment: PixelAlignment = "center"
+) -> np.ndarray:
     """Per-pixel solid angle `[He, We]` (steradians)."""
     width = 2 * height if width is None else width
     return np.repeat(row_solid_angle(height, width, alignment)[:, None], width, axis=1)
@@ -217,7 +289,9 @@ def convert_convention(env: EnvironmentMap, dst: str) -> EnvironmentMap:
         )
     m = _world_map(s, d)
     if not np.allclose(m @ np.asarray(d.up, float), np.asarray(s.up, float), atol=1e-12):
-        raise ConventionError(f"`dst` {dst!r} does not share the up axis of {s.name!r}; use a rotation.")
+        raise ConventionError(
+            f"`dst` {dst!r} does not share the up axis of {s.name!r}; use a rotation."
+        )
     we = env.width
     # Column j of dst looks at src column j_src = offset + sign*j (both are linear in u).
     u_dst = (np.arange(we) + 0.5) / we
@@ -232,7 +306,9 @@ def convert_convention(env: EnvironmentMap, dst: str) -> EnvironmentMap:
             f"(off by {err.max():.3f} px); use a width divisible by 4."
         )
     out = env.radiance_linear[:, idx, :]
-    return EnvironmentMap(radiance_linear=out, convention=d.name, alignment="center", metadata=dict(env.metadata))
+    return EnvironmentMap(
+        radiance_linear=out, convention=d.name, alignment="center", metadata=dict(env.metadata)
+    )
 
 
 def to_center_alignment(env: EnvironmentMap) -> EnvironmentMap:
@@ -260,7 +336,12 @@ def to_center_alignment(env: EnvironmentMap) -> EnvironmentMap:
     top = rows0[:, x0] * (1 - fx) + rows0[:, x0 + 1] * fx
     bot = rows1[:, x0] * (1 - fx) + rows1[:, x0 + 1] * fx
     out = (top * (1 - fy) + bot * fy).astype(np.float32)
-    return EnvironmentMap(radiance_linear=out, convention=env.convention, alignment="center", metadata=dict(env.metadata))
+    return EnvironmentMap(
+        radiance_linear=out,
+        convention=env.convention,
+        alignment="center",
+        metadata=dict(env.metadata),
+    )
 
 
 def chirality(convention: str) -> int:

@@ -32,7 +32,7 @@ from gaffer_envmap.rotate import (
     as_radiance_batch,
     as_rotations,
     prefilter_height,
-    rotate_to_camera,
+    rotate_channels_first,
 )
 
 Compat = Literal["default", "neural-gaffer"]
@@ -56,8 +56,11 @@ class LightingEncoding:
 
     def to_uint8(self) -> tuple[np.ndarray, np.ndarray]:
         """`[B, S, S, 3]` uint8 pair (round-to-nearest; exact for compat maps, which are already 8-bit)."""
+
         def q(t: Tensor) -> np.ndarray:
-            return torch.round(t.clamp(0, 1) * 255).to(torch.uint8).permute(0, 2, 3, 1).cpu().numpy()
+            return (
+                torch.round(t.clamp(0, 1) * 255).to(torch.uint8).permute(0, 2, 3, 1).cpu().numpy()
+            )
 
         return q(self.ldr), q(self.hdr)
 
@@ -72,13 +75,19 @@ def hdr_encode(radiance_linear: Tensor, peak: Tensor) -> Tensor:
 
     `peak` broadcasts against `radiance_linear` (e.g. `[B, 1, 1, 1]`).
     """
-    e = torch.nan_to_num(radiance_linear.clamp_min(0), nan=0.0, posinf=torch.finfo(torch.float32).max)
+    e = torch.nan_to_num(
+        radiance_linear.clamp_min(0), nan=0.0, posinf=torch.finfo(torch.float32).max
+    )
     denom = torch.log1p(HDR_GAIN * peak.clamp_min(0))
     safe = torch.where(denom > 0, denom, torch.ones_like(denom))
     return torch.where(denom > 0, torch.log1p(HDR_GAIN * e) / safe, torch.zeros_like(e)).clamp(0, 1)
 
 
-def _pair(env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor", w2c: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor", device: "torch.device | str | None") -> tuple[Tensor, Tensor]:
+def _pair(
+    env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor",
+    w2c: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
+    device: "torch.device | str | None",
+) -> tuple[Tensor, Tensor]:
     src = as_radiance_batch(env, device)
     rot = as_rotations(w2c, src.device)
     if src.shape[0] == 1 and rot.shape[0] > 1:
@@ -86,7 +95,11 @@ def _pair(env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor"
     elif rot.shape[0] == 1 and src.shape[0] > 1:
         rot = rot.expand(src.shape[0], -1, -1)
     if src.shape[0] != rot.shape[0]:
-        raise ShapeError("w2c_blender", tuple(rot.shape), f"[{src.shape[0]}, 3, 4] (one pose per map, or one for all)")
+        raise ShapeError(
+            "w2c_blender",
+            tuple(rot.shape),
+            f"[{src.shape[0]}, 3, 4] (one pose per map, or one for all)",
+        )
     return src, rot
 
 
@@ -141,12 +154,13 @@ def encode_lighting(
     ss = supersample if filter == "area" else 1
     if filter == "area":
         src = resize_conservative_torch(src, prefilter_height(src.shape[1], size, size, ss))
-    rotated = rotate_to_camera(src, rot, height=size, width=size, filter=filter, supersample=supersample,
-                               spin_deg=spin_deg, pairing="zip")  # [B, S, S, 3]
+    rotated = rotate_channels_first(
+        src, rot, size, size, filter=filter, supersample=supersample, spin_deg=spin_deg, pairing="zip"
+    )  # [B, 3, S, S]
     # Rotation-invariant normaliser: the source's peak at the resolution the rotation reads.
     peak = torch.nan_to_num(src, nan=0.0, posinf=0.0).amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
     ldr = ldr_encode(rotated)
     hdr = hdr_encode(rotated, peak)
     if quantize:
         ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
-    return LightingEncoding(ldr=ldr.permute(0, 3, 1, 2).contiguous(), hdr=hdr.permute(0, 3, 1, 2).contiguous(), compat=compat)
+    return LightingEncoding(ldr=ldr, hdr=hdr, compat=compat)

@@ -40,28 +40,38 @@ _MODE_CONVERSION = {
 _SIXTEEN_BIT_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I")
 
 
-def _open(path: Path) -> Any:  # a PIL.Image.Image
+def _decode_pixels(img: Any, path: Path) -> tuple[np.ndarray, str]:
+    """Pixels of an open PIL image as an array, after the mode conversions documented below."""
+    width, height = img.size
+    if width * height > MAX_PIXELS:
+        raise EnvmapReadError(
+            f"`path` {str(path)!r} declares {width} x {height} pixels, above the supported "
+            f"{MAX_PIXELS}; the file is probably corrupt."
+        )
+    img.load()
+    mode = img.mode
+    if mode == "P" and "transparency" not in img.info:
+        img, mode = img.convert("RGB"), "RGB"
+    elif mode in _MODE_CONVERSION:
+        img, mode = img.convert(_MODE_CONVERSION[mode]), _MODE_CONVERSION[mode]
+    return np.array(img), mode
+
+
+def _load(path: Path) -> tuple[np.ndarray, str]:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        img = Image.open(path)
-        width, height = img.size
-        if width * height > MAX_PIXELS:
-            raise EnvmapReadError(
-                f"`path` {str(path)!r} declares {width} x {height} pixels, above the supported "
-                f"{MAX_PIXELS}; the file is probably corrupt."
-            )
-        img.load()
+        with Image.open(path) as img:  # closes the file on every path, errors included
+            return _decode_pixels(img, path)
+    except EnvmapReadError:
+        raise
     except FileNotFoundError as exc:
         raise EnvmapReadError(f"`path` {str(path)!r} does not exist.") from exc
     except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
-        if isinstance(exc, EnvmapReadError):
-            raise
         raise EnvmapReadError(
             f"`path` {str(path)!r} could not be decoded as an image ({exc}); the file is "
             "probably truncated or corrupt."
         ) from exc
-    return img
 
 
 def read_ldr(path: str | os.PathLike[str]) -> np.ndarray:
@@ -80,13 +90,7 @@ def read_ldr(path: str | os.PathLike[str]) -> np.ndarray:
     Raises:
         EnvmapReadError: missing, truncated, corrupt or too large file.
     """
-    img = _open(Path(path))
-    mode = img.mode
-    if mode == "P" and "transparency" not in img.info:
-        img, mode = img.convert("RGB"), "RGB"
-    elif mode in _MODE_CONVERSION:
-        img, mode = img.convert(_MODE_CONVERSION[mode]), _MODE_CONVERSION[mode]
-    arr = np.asarray(img)
+    arr, mode = _load(Path(path))
     if mode in _SIXTEEN_BIT_MODES:
         scaled = arr.astype(np.float32) / 65535.0
     elif arr.dtype == np.uint8:
@@ -115,7 +119,7 @@ def decode_to_linear(values: np.ndarray, encoding: LdrEncoding = "srgb") -> np.n
         ValueError: unknown `encoding`.
 
     Example:
-        >>> decode_to_linear(np.array([0.0, 0.5, 1.0]), "gamma2.2").round(4).tolist()
+        >>> decode_to_linear(np.array([0.0, 0.5, 1.0]), "gamma2.2").astype(float).round(4).tolist()
         [0.0, 0.2176, 1.0]
     """
     if encoding not in ("srgb", "gamma2.2", "linear"):

@@ -47,7 +47,9 @@ def _as_3x4(matrix: np.ndarray, argument: str) -> np.ndarray:
     m = np.asarray(matrix, dtype=np.float64)
     if m.shape == (4, 4):
         if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
-            raise PoseError(f"`{argument}` is 4x4 but its last row is {m[3].tolist()}, not [0, 0, 0, 1].")
+            raise PoseError(
+                f"`{argument}` is 4x4 but its last row is {m[3].tolist()}, not [0, 0, 0, 1]."
+            )
         m = m[:3]
     if m.shape != (3, 4):
         raise PoseError(f"`{argument}` has shape {m.shape}, expected (3, 4) or (4, 4).")
@@ -113,7 +115,7 @@ class C2WOpenCV:
         """The same camera as a Blender world-to-camera 3x4."""
         r_cv = self.matrix[:3, :3].T  # world -> OpenCV camera
         r_bl = _BLENDER_TO_OPENCV @ r_cv
-        t = -r_bl @ self.matrix[:3, 3]
+        t = -(r_bl @ self.matrix[:3, 3])
         return W2CBlender(np.concatenate([r_bl, t[:, None]], axis=1))
 
 
@@ -143,7 +145,9 @@ def look_at_w2c_blender(
     return W2CBlender(np.concatenate([rotation, (-rotation @ eye)[:, None]], axis=1))
 
 
-def orbit_w2c_blender(azimuth_deg: float, elevation_deg: float, distance: float = 1.0) -> W2CBlender:
+def orbit_w2c_blender(
+    azimuth_deg: float, elevation_deg: float, distance: float = 1.0
+) -> W2CBlender:
     """Camera on a sphere around the origin looking at it (world z up).
 
     Position = distance * (cos(el) cos(az), cos(el) sin(az), sin(el)); azimuth counter-clockwise from +x

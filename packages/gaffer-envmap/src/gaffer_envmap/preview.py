@@ -15,7 +15,9 @@ def tonemap_preview(radiance_linear: np.ndarray, exposure: float | None = None) 
 
     NaN/Inf are drawn black. Deterministic (no randomness), round-to-nearest.
     """
-    x = np.nan_to_num(np.asarray(radiance_linear, np.float64), nan=0.0, posinf=0.0, neginf=0.0).clip(0, None)
+    x = np.nan_to_num(
+        np.asarray(radiance_linear, np.float64), nan=0.0, posinf=0.0, neginf=0.0
+    ).clip(0, None)
     if exposure is None:
         lum = x @ np.array([0.2126, 0.7152, 0.0722])
         med = float(np.median(lum))
@@ -24,7 +26,9 @@ def tonemap_preview(radiance_linear: np.ndarray, exposure: float | None = None) 
     return np.rint(srgb_encode(y / (1.0 + y)) * 255).astype(np.uint8)
 
 
-def contact_sheet(rows: list[list[tuple[str, np.ndarray]]], cell: int = 192, pad: int = 6) -> np.ndarray:
+def contact_sheet(
+    rows: list[list[tuple[str, np.ndarray]]], cell: int = 192, pad: int = 6
+) -> np.ndarray:
     """Grid of labelled uint8 RGB images (each scaled to `cell` px high, aspect kept)."""
     label_h = 14
     rendered: list[list[Image.Image]] = []
@@ -33,7 +37,7 @@ def contact_sheet(rows: list[list[tuple[str, np.ndarray]]], cell: int = 192, pad
         for label, img in row:
             im = Image.fromarray(img)
             w = max(1, round(im.width * cell / im.height))
-            im = im.resize((w, cell), Image.NEAREST if im.height < cell else Image.BILINEAR)
+            im = im.resize((w, cell), Image.Resampling.NEAREST if im.height < cell else Image.Resampling.BILINEAR)
             tile = Image.new("RGB", (w, cell + label_h), (255, 255, 255))
             tile.paste(im, (0, label_h))
             ImageDraw.Draw(tile).text((2, 1), label, fill=(0, 0, 0))

@@ -53,7 +53,9 @@ def resize_conservative_torch(radiance: Tensor, height: int, width: int | None =
     if h_in != height:
         if h_in % height == 0:
             k = h_in // height
-            z_in = torch.cos(torch.arange(h_in + 1, dtype=torch.float64, device=x.device) * torch.pi / h_in)
+            z_in = torch.cos(
+                torch.arange(h_in + 1, dtype=torch.float64, device=x.device) * torch.pi / h_in
+            )
             dz = (z_in[:-1] - z_in[1:]).reshape(height, k)
             x = (x.reshape(-1, height, k, w_in, 3) * dz[None, :, :, None, None]).sum(2)
             x = x / dz.sum(1)[None, :, None, None]

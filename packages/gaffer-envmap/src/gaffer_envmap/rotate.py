@@ -27,6 +27,7 @@ from typing import Literal
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from gaffer_envmap.conventions import row_solid_angle
@@ -40,7 +41,10 @@ Pairing = Literal["outer", "zip"]
 _SNAP_PX = 1e-3
 
 
-def as_radiance_batch(envmap: "EnvironmentMap | np.ndarray | Tensor | Sequence[EnvironmentMap]", device: "torch.device | str | None" = None) -> Tensor:
+def as_radiance_batch(
+    envmap: "EnvironmentMap | np.ndarray | Tensor | Sequence[EnvironmentMap]",
+    device: "torch.device | str | None" = None,
+) -> Tensor:
     """`[M, He, We, 3]` float32 tensor from one or many maps (Blender convention, centre-aligned)."""
     if isinstance(envmap, EnvironmentMap):
         envmap = [envmap]
@@ -64,7 +68,10 @@ def as_radiance_batch(envmap: "EnvironmentMap | np.ndarray | Tensor | Sequence[E
     return arr.to(device=device, dtype=torch.float32)
 
 
-def as_rotations(w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor", device: "torch.device | str | None" = None) -> Tensor:
+def as_rotations(
+    w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
+    device: "torch.device | str | None" = None,
+) -> Tensor:
     """`[P, 3, 3]` float64 world -> Blender-camera rotations from poses or `[P?, 3, 3|4]` / `[P?, 4, 4]` arrays.
 
     Raises:
@@ -75,11 +82,17 @@ def as_rotations(w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | 
     if isinstance(w2c_blender, Sequence) and not isinstance(w2c_blender, Tensor | np.ndarray):
         mats = np.stack([p.rotation for p in w2c_blender])
     else:
-        mats = w2c_blender.detach().cpu().double().numpy() if isinstance(w2c_blender, Tensor) else np.asarray(w2c_blender, np.float64)
+        mats = (
+            w2c_blender.detach().cpu().double().numpy()
+            if isinstance(w2c_blender, Tensor)
+            else np.asarray(w2c_blender, np.float64)
+        )
         if mats.ndim == 2:
             mats = mats[None]
         if mats.ndim != 3 or mats.shape[1] not in (3, 4) or mats.shape[2] not in (3, 4):
-            raise PoseError(f"`w2c_blender` has shape {mats.shape}, expected [P, 3, 4], [P, 3, 3] or [P, 4, 4].")
+            raise PoseError(
+                f"`w2c_blender` has shape {mats.shape}, expected [P, 3, 4], [P, 3, 3] or [P, 4, 4]."
+            )
         mats = mats[:, :3, :3]
         for i, m in enumerate(mats):
             check_rotation(m, f"w2c_blender[{i}]")
@@ -105,7 +118,9 @@ def _camera_grid(height: int, width: int, ss: int, device_str: str) -> tuple[Ten
     )
     w = torch.from_numpy(row_solid_angle(hs, ws)).reshape(height, ss)
     w = (w / w.sum(dim=1, keepdim=True)).reshape(hs)
-    return dirs.to(device=device_str, dtype=torch.float32), w.to(device=device_str, dtype=torch.float32)
+    return dirs.to(device=device_str, dtype=torch.float32), w.to(
+        device=device_str, dtype=torch.float32
+    )
 
 
 def _spin_matrix(spin_deg: "float | Tensor", count: int, device: torch.device) -> Tensor:
@@ -120,68 +135,69 @@ def _spin_matrix(spin_deg: "float | Tensor", count: int, device: torch.device) -
     return torch.stack([c, -s, z, s, c, z, z, z, o], dim=-1).reshape(count, 3, 3)
 
 
-def source_coordinates(rotations: Tensor, height: int, width: int, src_height: int, ss: int = 1, spin_deg: "float | Tensor" = 0.0) -> tuple[Tensor, Tensor]:
-    """Fractional source pixel coordinates (x, y), each `[P, height*ss, width*ss]` float32, for a source of
-    `src_height` rows in the Blender layout (x = column, y = row, pixel centres at integers)."""
+def padded_grid(
+    rotations: Tensor,
+    height: int,
+    width: int,
+    src_height: int,
+    ss: int = 1,
+    spin_deg: "float | Tensor" = 0.0,
+) -> Tensor:
+    """`grid_sample` coordinates `[P, height*ss, width*ss, 2]` into a `_pad_periodic` source of
+    `src_height` rows (Blender layout), align_corners=True.
+
+    Source column c = u We - 1/2 and row r = v He - 1/2 (pixel centres at integers) become padded
+    coordinates c + 1, r + 1, which stay inside [0.5, We + 0.5] x [0.5, He + 0.5]: the bilinear kernel
+    never leaves the padded image, so the seam wraps and the poles cross without any clamping.
+    """
     device = rotations.device
     dirs_cam, _ = _camera_grid(height, width, ss, str(device))
     p = rotations.shape[0]
     # d_world = R^T d_cam; as row vectors d_cam @ R. Spin: lookup = Rz(-spin) d_world.
-    # float32 is enough: its round-off (< 1e-4 px at We = 4096) is far inside the snapping tolerance.
     m = rotations.to(torch.float64) @ _spin_matrix(spin_deg, p, device).transpose(1, 2)
     hs, ws = dirs_cam.shape[:2]
     dirs_world = (dirs_cam.reshape(1, hs * ws, 3) @ m.float()).reshape(p, hs, ws, 3)
     x, y, z = dirs_world.unbind(-1)
-    u = 0.5 - torch.atan2(y, x) / (2 * math.pi)
-    v = torch.acos(z.clamp(-1.0, 1.0)) / math.pi
     src_width = 2 * src_height
-    col = torch.remainder(u * src_width - 0.5, src_width)
-    row = v * src_height - 0.5
-    # Snap to pixel centres: makes identity and whole-pixel yaws exact despite trig round-off.
-    col = torch.where((col - col.round()).abs() < _SNAP_PX, col.round(), col)
-    row = torch.where((row - row.round()).abs() < _SNAP_PX, row.round(), row)
-    col = torch.remainder(col, src_width)
-    return col.float(), row.float()
+    # u = 1/2 - atan2(y, x) / 2pi, v = acos(z) / pi, folded into grid_sample's [-1, 1] range.
+    gx = (
+        torch.atan2(y, x)
+        .mul_(-src_width / (math.pi * (src_width + 1)))
+        .add_(src_width / (src_width + 1) + 1.0 / (src_width + 1) - 1.0)
+    )
+    gy = (
+        torch.acos(z.clamp(-1.0, 1.0))
+        .mul_(2 * src_height / (math.pi * (src_height + 1)))
+        .add_(1.0 / (src_height + 1) - 1.0)
+    )
+    return torch.stack([gx, gy], dim=-1)
 
 
-def _pad_periodic(src: Tensor) -> Tensor:
-    """`[M, He+2, We+2, 3]`: one column wrapped on each side; above row 0 / below the last row, the same
-    row turned by half (the neighbour across the pole)."""
-    we = src.shape[2]
-    top = torch.roll(src[:, :1], we // 2, dims=2)
-    bottom = torch.roll(src[:, -1:], we // 2, dims=2)
-    rows = torch.cat([top, src, bottom], dim=1)
-    return torch.cat([rows[:, :, -1:], rows, rows[:, :, :1]], dim=2)
+def _pad_periodic(src_cf: Tensor) -> Tensor:
+    """`[M, 3, He+2, We+2]`: one column wrapped on each side; above row 0 and below the last row, the
+    same row turned by half a turn (its neighbour across the pole)."""
+    we = src_cf.shape[3]
+    top = torch.roll(src_cf[:, :, :1], we // 2, dims=3)
+    bottom = torch.roll(src_cf[:, :, -1:], we // 2, dims=3)
+    rows = torch.cat([top, src_cf, bottom], dim=2)
+    return torch.cat([rows[..., -1:], rows, rows[..., :1]], dim=3)
 
 
-def _gather(src_flat: Tensor, idx: Tensor, pairing: Pairing) -> Tensor:
-    """src_flat `[M, N_src, 3]`, idx `[P, N]` -> `[M, P, N, 3]` (outer) or `[B, N, 3]` (zip)."""
-    if pairing == "outer":
-        return src_flat[:, idx]
-    return torch.gather(src_flat, 1, idx[..., None].expand(-1, -1, 3))
+def _sample(src_cf: Tensor, grid: Tensor, pairing: Pairing) -> Tensor:
+    """Bilinear taps of channels-first maps `[M, 3, He, We]` (seam wrapped, poles crossed).
 
-
-def _sample(src: Tensor, col: Tensor, row: Tensor, pairing: Pairing) -> Tensor:
-    """Bilinear taps (seam wrapped, poles crossed) at fractional pixel coordinates."""
-    m, he, we, _ = src.shape
-    padded = _pad_periodic(src)
-    wp = we + 2
-    flat = padded.reshape(m, (he + 2) * wp, 3)
-    x, y = col + 1.0, row + 1.0  # into padded coordinates
-    x0f, y0f = torch.floor(x), torch.floor(y)
-    fx, fy = (x - x0f).flatten(1)[..., None], (y - y0f).flatten(1)[..., None]
-    x0, y0 = x0f.long().flatten(1), y0f.long().flatten(1)
-    out = None
-    for dy, wy in ((0, 1 - fy), (1, fy)):
-        for dx, wx in ((0, 1 - fx), (1, fx)):
-            w = wy * wx
-            if pairing == "outer":
-                w = w[None]
-            term = _gather(flat, (y0 + dy) * wp + (x0 + dx), pairing) * w
-            # Zero weights must not turn Inf/NaN neighbours into NaN: exact identity stays exact.
-            term = torch.where(w == 0, torch.zeros_like(term), term)
-            out = term if out is None else out + term
-    return out  # type: ignore[return-value]
+    Returns `[M, P, 3, h, w]` (outer) or `[B, 3, h, w]` (zip).
+    """
+    m, c, he, we = src_cf.shape
+    padded = _pad_periodic(src_cf)
+    if pairing == "zip":
+        return F.grid_sample(
+            padded, grid, mode="bilinear", padding_mode="border", align_corners=True
+        )
+    p = grid.shape[0]
+    stacked = padded.reshape(1, m * c, he + 2, we + 2).expand(p, -1, -1, -1)
+    out = F.grid_sample(stacked, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    return out.reshape(p, m, c, *grid.shape[1:3]).transpose(0, 1)
 
 
 def prefilter_height(src_height: int, out_height: int, out_width: int, ss: int) -> int:
@@ -239,10 +255,12 @@ def rotate_to_camera(
     """
     src = as_radiance_batch(envmap, device)
     rot = as_rotations(w2c_blender, src.device)
-    m, he, we, _ = src.shape
+    m, he = src.shape[:2]
     p = rot.shape[0]
     if pairing == "zip" and m != p:
-        raise ShapeError("w2c_blender", (p, 3, 3), f"[{m}, 3, 3] (pairing='zip' needs one pose per map)")
+        raise ShapeError(
+            "w2c_blender", (p, 3, 3), f"[{m}, 3, 3] (pairing='zip' needs one pose per map)"
+        )
     if pairing not in ("outer", "zip"):
         raise GafferEnvmapError(f"`pairing` must be 'outer' or 'zip', got {pairing!r}.")
     if filter not in ("area", "bilinear"):
@@ -253,27 +271,58 @@ def rotate_to_camera(
     out_w = 2 * out_h if width is None else int(width)
     if out_h < 1 or out_w < 1:
         raise ShapeError("height/width", (out_h, out_w), "positive sizes")
+    out = rotate_channels_first(
+        src,
+        rot,
+        out_h,
+        out_w,
+        filter=filter,
+        supersample=supersample,
+        renormalize=renormalize,
+        spin_deg=spin_deg,
+        pairing=pairing,
+    )
+    return out.movedim(-3, -1)
+
+
+def rotate_channels_first(
+    src: Tensor,
+    rot: Tensor,
+    out_h: int,
+    out_w: int,
+    *,
+    filter: Filter = "area",
+    supersample: int = 2,
+    renormalize: bool = False,
+    spin_deg: "float | Tensor" = 0.0,
+    pairing: Pairing = "outer",
+) -> Tensor:
+    """The work of `rotate_to_camera` on validated tensors: `src` `[M, He, We, 3]`, `rot` `[P, 3, 3]`.
+
+    Returns channels-first `[M, P, 3, h, w]` (outer) or `[B, 3, h, w]` (zip), the layout networks use.
+    """
     ss = supersample if filter == "area" else 1
+    he = src.shape[1]
     if filter == "area":
         src = resize_conservative_torch(src, prefilter_height(he, out_h, out_w, ss))
-    col, row = source_coordinates(rot, out_h, out_w, src.shape[1], ss, spin_deg)
-    samples = _sample(src, col, row, pairing)  # [M, P, N, 3] or [B, N, 3]
-    lead = samples.shape[:-2]
-    samples = samples.reshape(*lead, out_h * ss, out_w, ss, 3)
+    grid = padded_grid(rot, out_h, out_w, src.shape[1], ss, spin_deg)
+    src_cf = src.permute(0, 3, 1, 2)
+    out = _sample(src_cf, grid, pairing)  # [M, P, 3, h*ss, w*ss] or [B, 3, h*ss, w*ss]
     if ss > 1:
         _, w = _camera_grid(out_h, out_w, ss, str(src.device))
-        samples = samples.reshape(*lead, out_h, ss, out_w, ss, 3)
-        w4 = w.reshape(out_h, ss)[:, :, None, None, None] / ss
-        out = (samples * w4).sum(dim=(-4, -2))
-    else:
-        out = samples.reshape(*lead, out_h, out_w, 3)
-    out = _exact_permutations(out, src, rot, spin_deg, pairing)
+        lead = out.shape[:-2]
+        out = out.reshape(*lead, out_h, ss, out_w, ss)
+        # Solid-angle-weighted mean over the ss x ss sub-samples of each pixel.
+        out = (out * (w.reshape(out_h, ss, 1, 1) / ss)).sum(dim=(-3, -1))
+    out = _exact_permutations(out, src_cf, rot, spin_deg, pairing)
     if filter == "area" and renormalize:
-        out = _renormalize(out, src, out_h, out_w, pairing)
+        out = _renormalize(out, src_cf, pairing)
     return out
 
 
-def _exact_permutations(out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float | Tensor", pairing: Pairing) -> Tensor:
+def _exact_permutations(
+    out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float | Tensor", pairing: Pairing
+) -> Tensor:
     """Replace the output of every pose that maps the output grid exactly onto the source grid.
 
     That happens when sizes match and the lookup rotation is the identity layout turned about world up by
@@ -281,8 +330,8 @@ def _exact_permutations(out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float 
     roll of the source: bit-exact whatever the filter (sub-samples would otherwise blur it by a quarter
     pixel).
     """
-    m_, he, we, _ = src.shape
-    if out.shape[-3:-1] != (he, we):
+    he, we = src.shape[2:4]
+    if out.shape[-2:] != (he, we):
         return out
     m = rot.to(torch.float64) @ _spin_matrix(spin_deg, rot.shape[0], rot.device).transpose(1, 2)
     # m = R0 Rz(a) for some a  <=>  R0^T m is a rotation about z.
@@ -295,25 +344,27 @@ def _exact_permutations(out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float 
         return out
     out = out.clone()
     for p in torch.nonzero(whole).flatten().tolist():
-        k = int(round(float(shift[p])))
+        k = round(float(shift[p]))
         if pairing == "outer":
-            out[:, p] = torch.roll(src, -k, dims=2)
+            out[:, p] = torch.roll(src, -k, dims=3)
         else:
-            out[p] = torch.roll(src[p], -k, dims=1)
+            out[p] = torch.roll(src[p], -k, dims=2)
     return out
 
 
 _IDENTITY_LAYOUT = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0))
 
 
-def _renormalize(out: Tensor, src: Tensor, out_h: int, out_w: int, pairing: Pairing) -> Tensor:
-    """Scale each rotated map so its total power per channel equals the source's (exact global energy)."""
-    om_src = torch.from_numpy(row_solid_angle(src.shape[1], src.shape[2])).to(src.device, torch.float64)
-    om_out = torch.from_numpy(row_solid_angle(out_h, out_w)).to(src.device, torch.float64)
-    p_src = (src.double() * om_src[None, :, None, None]).sum(dim=(1, 2))  # [M, 3]
-    p_out = (out.double() * om_out[:, None, None]).sum(dim=(-3, -2))  # [M, P, 3] or [B, 3]
+def _renormalize(out: Tensor, src: Tensor, pairing: Pairing) -> Tensor:
+    """Scale each rotated map (channels-first) so its power per channel equals the source's."""
+    dev = src.device
+    om_src = torch.from_numpy(row_solid_angle(src.shape[2], src.shape[3])).to(dev, torch.float64)
+    om_out = torch.from_numpy(row_solid_angle(out.shape[-2], out.shape[-1])).to(dev, torch.float64)
+    p_src = (src.double() * om_src[:, None]).sum(dim=(-2, -1))  # [M, 3]
+    p_out = (out.double() * om_out[:, None]).sum(dim=(-2, -1))  # [M, P, 3] or [B, 3]
     if pairing == "outer":
         p_src = p_src[:, None]
     finite = torch.isfinite(p_src) & torch.isfinite(p_out) & (p_out > 0)
-    scale = torch.where(finite, p_src / torch.where(finite, p_out, torch.ones_like(p_out)), torch.ones_like(p_out))
-    return (out.double() * scale[..., None, None, :]).float()
+    safe = torch.where(finite, p_out, torch.ones_like(p_out))
+    scale = torch.where(finite, p_src / safe, torch.ones_like(p_out))
+    return (out.double() * scale[..., None, None]).float()

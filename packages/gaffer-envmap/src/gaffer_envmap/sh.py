@@ -44,13 +44,15 @@ def sh_basis(dirs: np.ndarray, order: int) -> np.ndarray:
     for m in range(order):
         p[(m + 1, m)] = (2 * m + 1) * ct * p[(m, m)]
     for m in range(order + 1):
-        for l in range(m + 2, order + 1):  # noqa: E741
+        for l in range(m + 2, order + 1):
             p[(l, m)] = ((2 * l - 1) * ct * p[(l - 1, m)] - (l + m - 1) * p[(l - 2, m)]) / (l - m)
     out = np.empty((*ct.shape, num_coefficients(order)))
-    for l in range(order + 1):  # noqa: E741
+    for l in range(order + 1):
         for m in range(-l, l + 1):
             am = abs(m)
-            k = math.sqrt((2 * l + 1) / (4 * math.pi) * math.factorial(l - am) / math.factorial(l + am))
+            k = math.sqrt(
+                (2 * l + 1) / (4 * math.pi) * math.factorial(l - am) / math.factorial(l + am)
+            )
             if m == 0:
                 val = k * p[(l, 0)]
             elif m > 0:
@@ -73,29 +75,39 @@ def project_sh(env: EnvironmentMap, order: int = 2) -> np.ndarray:
 
 def reconstruct_sh(coeffs: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Radiance `[..., 3]` of an SH expansion `[K, 3]` at directions `[..., 3]`."""
-    order = int(round(math.sqrt(coeffs.shape[0]))) - 1
+    order = round(math.sqrt(coeffs.shape[0])) - 1
     return sh_basis(dirs, order) @ coeffs
 
 
 def cosine_lobe_coefficients(order: int) -> np.ndarray:
     """A_l, l = 0..order: SH coefficients of max(0, cos) scaled for irradiance (A_0 = pi, A_1 = 2pi/3, ...)."""
     a = np.zeros(order + 1)
-    for l in range(order + 1):  # noqa: E741
+    for l in range(order + 1):
         if l == 1:
             a[l] = 2 * math.pi / 3
         elif l % 2 == 0:
-            a[l] = (2 * math.pi * (-1) ** (l // 2 - 1) / ((l + 2) * (l - 1))
-                    * math.factorial(l) / (2**l * math.factorial(l // 2) ** 2))
+            a[l] = (
+                2
+                * math.pi
+                * (-1) ** (l // 2 - 1)
+                / ((l + 2) * (l - 1))
+                * math.factorial(l)
+                / (2**l * math.factorial(l // 2) ** 2)
+            )
     return a
 
 
-def irradiance(env: EnvironmentMap, normals: np.ndarray, order: int = 2, window: bool = False) -> np.ndarray:
+def irradiance(
+    env: EnvironmentMap, normals: np.ndarray, order: int = 2, window: bool = False
+) -> np.ndarray:
     """Diffuse irradiance `[..., 3]`, integral L(w) max(0, n.w) dw, at unit normals `[..., 3]` (map's frame)."""
     coeffs = project_sh(env, order)
     a = cosine_lobe_coefficients(order)
     if window:
-        a = a * np.array([0.5 * (1 + math.cos(math.pi * l / (order + 1))) for l in range(order + 1)])  # noqa: E741
-    per_coeff = np.concatenate([np.full(2 * l + 1, a[l]) for l in range(order + 1)])  # noqa: E741
+        a = a * np.array(
+            [0.5 * (1 + math.cos(math.pi * l / (order + 1))) for l in range(order + 1)]
+        )
+    per_coeff = np.concatenate([np.full(2 * l + 1, a[l]) for l in range(order + 1)])
     return sh_basis(normals, order) @ (coeffs * per_coeff[:, None])
 
 

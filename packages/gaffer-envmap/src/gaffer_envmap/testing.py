@@ -14,7 +14,14 @@ from gaffer_envmap.conventions import direction_grid, row_solid_angle
 from gaffer_envmap.environment_map import EnvironmentMap
 
 
-def disc_sun_map(height: int, direction: np.ndarray, radius_deg: float, radiance: float, sky: float = 0.0, supersample: int = 8) -> EnvironmentMap:
+def disc_sun_map(
+    height: int,
+    direction: np.ndarray,
+    radius_deg: float,
+    radiance: float,
+    sky: float = 0.0,
+    supersample: int = 8,
+) -> EnvironmentMap:
     """A Blender-convention map with a disc sun of angular `radius_deg` centred on unit `direction`.
 
     Pixels on the disc's edge get the covered fraction (from `supersample`^2 sub-samples), so the sun's power
@@ -46,7 +53,9 @@ def smooth_random_map(height: int, seed: int = 0, lobes: int = 6) -> Environment
     return EnvironmentMap(radiance_linear=out.astype(np.float32))
 
 
-def reference_neural_gaffer(radiance: np.ndarray, w2c_blender: np.ndarray, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
+def reference_neural_gaffer(
+    radiance: np.ndarray, w2c_blender: np.ndarray, size: int = 256
+) -> tuple[np.ndarray, np.ndarray]:
     """The authors' preprocessing written out directly (reference section 4, steps 1-7), one map.
 
     numpy for the directions, a hand-written align_corners=True zero-padded bilinear lookup, PIL resize.
@@ -70,7 +79,7 @@ def reference_neural_gaffer(radiance: np.ndarray, w2c_blender: np.ndarray, size:
     out = []
     for m in (ldr, hdr):
         u8 = np.floor(m * 255).astype(np.uint8)
-        out.append(np.asarray(Image.fromarray(u8).resize((size, size), Image.BILINEAR)))
+        out.append(np.asarray(Image.fromarray(u8).resize((size, size), Image.Resampling.BILINEAR)))
     return out[0], out[1]
 
 
@@ -81,7 +90,7 @@ def _bilinear_align_corners_zeros(img: np.ndarray, gx: np.ndarray, gy: np.ndarra
     y = (gy.astype(np.float32) + np.float32(1)) / np.float32(2) * np.float32(h - 1)
     x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
     fx, fy = (x - x0)[..., None], (y - y0)[..., None]
-    out = np.zeros(gx.shape + (img.shape[2],), np.float32)
+    out = np.zeros((*gx.shape, img.shape[2]), np.float32)
     for dy, wy in ((0, 1 - fy), (1, fy)):
         for dx, wx in ((0, 1 - fx), (1, fx)):
             xi, yi = x0 + dx, y0 + dy
@@ -91,7 +100,9 @@ def _bilinear_align_corners_zeros(img: np.ndarray, gx: np.ndarray, gy: np.ndarra
     return out
 
 
-def reference_rotate(radiance: np.ndarray, w2c_blender: np.ndarray, height: int, width: int) -> np.ndarray:
+def reference_rotate(
+    radiance: np.ndarray, w2c_blender: np.ndarray, height: int, width: int
+) -> np.ndarray:
     """Plain numpy twin of `rotate_to_camera(filter="bilinear")`: loops over the four taps, float64."""
     he, we, _ = radiance.shape
     r = np.asarray(w2c_blender, np.float64)[:3, :3]

@@ -6,14 +6,16 @@ gaffer. The job file is JSON:
     {
       "threads": 2,
       "renders": [{"env": "in.exr", "out": "out.exr", "width": 128, "height": 64,
-                   "rotation": [[...], [...], [...]], "interpolation": "Closest" | "Linear"}],
+                   "rotation": [[...], [...], [...]], "interpolation": "Closest" | "Linear",
+                   "camera": "PANO" | "PERSP", "fov_deg": 40.0}],
       "track_to": [{"location": [x, y, z]}],
       "result": "result.json"
     }
 
 Each render: the world is an Environment Texture (equirectangular, strength 1) showing `env`; a panoramic
-EQUIRECTANGULAR camera sits at the origin with `matrix_world` rotation = `rotation` (columns = camera
-x, y, z axes in world coordinates); Cycles, 1 sample, box pixel filter of width 0.01 px (i.e. one point
+EQUIRECTANGULAR camera ("PANO", default) or a perspective camera ("PERSP", horizontal field of view
+`fov_deg`) sits at the origin with `matrix_world` rotation = `rotation` (columns = camera x, y, z axes in
+world coordinates); Cycles, 1 sample, box pixel filter of width 0.01 px (i.e. one point
 sample at each pixel centre), view transform Standard, 32-bit float EXR written top row first.
 
 Each track_to entry: a perspective camera at `location` with a TRACK_TO constraint (track -Z, up Y)
@@ -84,16 +86,21 @@ def _setup_world(scene: bpy.types.Scene) -> bpy.types.ShaderNodeTexEnvironment:
     return tex
 
 
-def _panorama_camera(scene: bpy.types.Scene) -> bpy.types.Object:
-    data = bpy.data.cameras.new("pano")
-    data.type = "PANO"
-    data.panorama_type = "EQUIRECTANGULAR"
-    # Defaults, set explicitly: the full sphere.
-    data.latitude_min, data.latitude_max = -1.5707963267948966, 1.5707963267948966
-    data.longitude_min, data.longitude_max = -3.141592653589793, 3.141592653589793
-    cam = bpy.data.objects.new("pano", data)
+def _camera(scene: bpy.types.Scene, kind: str, fov_deg: float) -> bpy.types.Object:
+    data = bpy.data.cameras.new(kind.lower())
+    if kind == "PANO":
+        data.type = "PANO"
+        data.panorama_type = "EQUIRECTANGULAR"
+        # Defaults, set explicitly: the full sphere.
+        data.latitude_min, data.latitude_max = -1.5707963267948966, 1.5707963267948966
+        data.longitude_min, data.longitude_max = -3.141592653589793, 3.141592653589793
+    else:
+        data.type = "PERSP"
+        data.sensor_fit = "HORIZONTAL"
+        data.angle = fov_deg * 3.141592653589793 / 180.0  # horizontal field of view
+        data.shift_x = data.shift_y = 0.0
+    cam = bpy.data.objects.new(kind.lower(), data)
     scene.collection.objects.link(cam)
-    scene.camera = cam
     return cam
 
 
@@ -101,31 +108,36 @@ def _render(job: dict, threads: int) -> list[dict]:
     scene = _reset_scene()
     _setup_render(scene, threads)
     tex = _setup_world(scene)
-    cam = _panorama_camera(scene)
     done = []
     for item in job:
         start = time.perf_counter()
+        cam = _camera(scene, item.get("camera", "PANO"), float(item.get("fov_deg", 40.0)))
+        scene.camera = cam
         image = bpy.data.images.load(item["env"], check_existing=False)
         tex.image = image
         tex.interpolation = item.get("interpolation", "Closest")
         rot = item["rotation"]
         cam.matrix_world = Matrix(
-            [[rot[0][0], rot[0][1], rot[0][2], 0.0],
-             [rot[1][0], rot[1][1], rot[1][2], 0.0],
-             [rot[2][0], rot[2][1], rot[2][2], 0.0],
-             [0.0, 0.0, 0.0, 1.0]]
+            [
+                [rot[0][0], rot[0][1], rot[0][2], 0.0],
+                [rot[1][0], rot[1][1], rot[1][2], 0.0],
+                [rot[2][0], rot[2][1], rot[2][2], 0.0],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
         )
         scene.render.resolution_x = int(item["width"])
         scene.render.resolution_y = int(item["height"])
         scene.render.filepath = item["out"]
         scene.render.use_file_extension = False
         bpy.ops.render.render(write_still=True)
-        done.append({
-            "out": item["out"],
-            "seconds": time.perf_counter() - start,
-            "image_colorspace": image.colorspace_settings.name,
-            "image_is_float": bool(image.is_float),
-        })
+        done.append(
+            {
+                "out": item["out"],
+                "seconds": time.perf_counter() - start,
+                "image_colorspace": image.colorspace_settings.name,
+                "image_is_float": bool(image.is_float),
+            }
+        )
         bpy.data.images.remove(image)
     return done
 
@@ -149,7 +161,7 @@ def _track_to(job: list[dict]) -> list[dict]:
         location, rotation = cam.matrix_world.decompose()[0:2]
         r_w2c = rotation.to_matrix().transposed()
         t_w2c = -1 * r_w2c @ location
-        rt = [list(r_w2c[i]) + [t_w2c[i]] for i in range(3)]
+        rt = [[*r_w2c[i], t_w2c[i]] for i in range(3)]
         out.append({"matrix_world": [list(row) for row in cam.matrix_world], "rt_authors": rt})
     return out
 

@@ -75,7 +75,9 @@ def check_schema(data: dict[str, Any], *, schema: str, version: str, where: str)
         ManifestError: missing or malformed header.
     """
     if not isinstance(data, dict) or "schema" not in data or "schema_version" not in data:
-        raise ManifestError(f"{where} has no `schema`/`schema_version` header; it is not a gaffer manifest.")
+        raise ManifestError(
+            f"{where} has no `schema`/`schema_version` header; it is not a gaffer manifest."
+        )
     if data["schema"] != schema:
         raise SchemaVersionError(
             f"{where} has `schema`={data['schema']!r}, expected {schema!r}; pass the right file."
@@ -251,9 +253,13 @@ def read_json(path: Path) -> dict[str, Any]:
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError as exc:
-        raise ManifestError(f"`{path}` does not exist; is this a gaffer-data render folder?") from exc
+        raise ManifestError(
+            f"`{path}` does not exist; is this a gaffer-data render folder?"
+        ) from exc
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ManifestError(f"`{path}` is not readable JSON ({exc}); delete it and re-render.") from exc
+        raise ManifestError(
+            f"`{path}` is not readable JSON ({exc}); delete it and re-render."
+        ) from exc
     if not isinstance(data, dict):
         raise ManifestError(f"`{path}` holds a JSON {type(data).__name__}, expected an object.")
     return data

@@ -29,7 +29,7 @@ from gaffer_data.dataset.schema import (
     RelightSample,
     RenderedObject,
 )
-from gaffer_data.errors import IntegrityError, InputError
+from gaffer_data.errors import InputError, IntegrityError
 
 MANIFEST_NAME = "manifest.json"
 """An object folder is complete iff this file exists (it is written atomically, last)."""
@@ -53,7 +53,9 @@ def load_poses(path: Path, num_views: int | None = None) -> CameraPoses:
             c2w = np.array(npz["c2w_opencv"], dtype=np.float64)
             k = np.array(npz["intrinsics"], dtype=np.float64)
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
-        raise IntegrityError(f"`{path}` is not a valid cameras NPZ ({exc!r}); re-render the object.") from exc
+        raise IntegrityError(
+            f"`{path}` is not a valid cameras NPZ ({exc!r}); re-render the object."
+        ) from exc
     v = w2c.shape[0] if num_views is None else num_views
     if w2c.shape != (v, 3, 4) or c2w.shape != (v, 4, 4) or k.shape != (3, 3):
         raise IntegrityError(
@@ -97,7 +99,9 @@ def verify_object(obj: RenderedObject) -> None:
     for record in obj.files:
         path = obj.path(record.path)
         if not path.is_file():
-            raise IntegrityError(f"`{path}` is listed in the manifest but missing; re-render the object.")
+            raise IntegrityError(
+                f"`{path}` is listed in the manifest but missing; re-render the object."
+            )
         digest = sha256_file(path)
         if digest != record.sha256:
             raise IntegrityError(
@@ -182,9 +186,13 @@ def open_dataset(root: str | Path) -> RenderDataset:
     """
     root = Path(root)
     if not root.is_dir():
-        raise InputError(f"`root`={str(root)!r} is not a folder; pass the `--out` folder of a render.")
+        raise InputError(
+            f"`root`={str(root)!r} is not a folder; pass the `--out` folder of a render."
+        )
     ids = tuple(
-        sorted(p.parent.name for p in (root / OBJECTS_DIR).glob(f"*/{MANIFEST_NAME}") if p.is_file())
+        sorted(
+            p.parent.name for p in (root / OBJECTS_DIR).glob(f"*/{MANIFEST_NAME}") if p.is_file()
+        )
     )
     config = None
     failures: tuple[FailureRecord, ...] = ()

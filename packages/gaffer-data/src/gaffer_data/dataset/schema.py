@@ -38,7 +38,9 @@ DATASET_SCHEMA_VERSION = "1.0"
 
 ColorSpace = Literal["linear_rec709", "srgb", "data"]
 """`linear_rec709`: scene-linear EXR; `srgb`: 8-bit display PNG; `data`: non-colour (normals, depth)."""
-FileKind = Literal["lit_exr", "lit_png", "area_exr", "area_png", "alpha", "normal", "albedo", "depth", "cameras"]
+FileKind = Literal[
+    "lit_exr", "lit_png", "area_exr", "area_png", "alpha", "normal", "albedo", "depth", "cameras"
+]
 
 
 @dataclass(frozen=True, kw_only=True)

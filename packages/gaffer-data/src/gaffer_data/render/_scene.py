@@ -60,7 +60,9 @@ def _import_file(path: Path, suffix: str) -> None:
             if obj is not None:
                 bpy.context.scene.collection.objects.link(obj)
     else:
-        raise InputError(f"`{path}` has an unsupported suffix {suffix!r}; use one of {MESH_SUFFIXES}.")
+        raise InputError(
+            f"`{path}` has an unsupported suffix {suffix!r}; use one of {MESH_SUFFIXES}."
+        )
 
 
 def normalize_scene() -> tuple[float, tuple[float, float, float]]:
@@ -83,7 +85,9 @@ def normalize_scene() -> tuple[float, tuple[float, float, float]]:
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     extent = float((hi - lo).max())
     if not math.isfinite(extent) or extent <= 0.0:
-        raise InputError("the object has a zero-size or non-finite bounding box; it cannot be normalised.")
+        raise InputError(
+            "the object has a zero-size or non-finite bounding box; it cannot be normalised."
+        )
     scale = 1.0 / extent
     center = (lo + hi) / 2.0
     transform = Matrix.Scale(scale, 4) @ Matrix.Translation(Vector((-center).tolist()))
@@ -145,7 +149,9 @@ def set_camera_pose(camera: bpy.types.Object, c2w_blender: np.ndarray) -> None:
     camera.matrix_world = Matrix([list(map(float, row)) for row in c2w_blender])
 
 
-def envmap_world(scene: bpy.types.Scene) -> tuple[bpy.types.World, bpy.types.ShaderNodeTexEnvironment]:
+def envmap_world(
+    scene: bpy.types.Scene,
+) -> tuple[bpy.types.World, bpy.types.ShaderNodeTexEnvironment]:
     """A world of an equirectangular Environment Texture (Blender's default mapping) into a Background."""
     world = bpy.data.worlds.new("gaffer_envmap")
     tree = _world_tree(world)

@@ -53,7 +53,9 @@ def camera_position(elevation_deg: float, azimuth_deg: float, distance: float) -
     return distance * np.array([math.cos(e) * math.cos(a), math.cos(e) * math.sin(a), math.sin(e)])
 
 
-def look_at_c2w_blender(position: Sequence[float], target: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+def look_at_c2w_blender(
+    position: Sequence[float], target: Sequence[float] = (0.0, 0.0, 0.0)
+) -> np.ndarray:
     """`[4, 4]` camera-to-world of a Blender camera at `position` looking at `target` with +z up.
 
     Blender cameras look down their local -z with local +y up, as a Track To constraint (-Z, up Y) sets
@@ -102,8 +104,12 @@ def scan_envmaps(folder: str | Path) -> tuple[PoolEntry, ...]:
 
     folder = Path(folder)
     if not folder.is_dir():
-        raise InputError(f"`envmaps`={str(folder)!r} is not a folder; pass a folder of .exr/.hdr maps.")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in ENVMAP_SUFFIXES and p.is_file())
+        raise InputError(
+            f"`envmaps`={str(folder)!r} is not a folder; pass a folder of .exr/.hdr maps."
+        )
+    files = sorted(
+        p for p in folder.iterdir() if p.suffix.lower() in ENVMAP_SUFFIXES and p.is_file()
+    )
     if not files:
         raise InputError(
             f"`envmaps`={str(folder)!r} holds no .exr or .hdr file; add environment maps "
@@ -165,7 +171,12 @@ def plan_object(
                 strength=config.envmap_strength,
             )
             lit.append(
-                LitImage(lighting_index=li, envmap=ref, exr=f"lit/{v:03d}_{li:03d}.exr", png=f"lit/{v:03d}_{li:03d}.png")
+                LitImage(
+                    lighting_index=li,
+                    envmap=ref,
+                    exr=f"lit/{v:03d}_{li:03d}.exr",
+                    png=f"lit/{v:03d}_{li:03d}.png",
+                )
             )
         area = None
         if config.area_light_render:

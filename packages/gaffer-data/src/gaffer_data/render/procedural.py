@@ -64,7 +64,10 @@ def _random_material(rng: np.random.Generator, name: str) -> object:
         mat.use_nodes = True
         bsdf = mat.node_tree.nodes["Principled BSDF"]
     r, g, b = colorsys.hsv_to_rgb(rng.uniform(), rng.uniform(0.0, 0.9), rng.uniform(0.2, 1.0))
-    kind = rng.choice(["diffuse", "plastic", "metal", "mirror", "glass", "emissive"], p=[0.3, 0.25, 0.2, 0.1, 0.1, 0.05])
+    kind = rng.choice(
+        ["diffuse", "plastic", "metal", "mirror", "glass", "emissive"],
+        p=[0.3, 0.25, 0.2, 0.1, 0.1, 0.05],
+    )
     metallic, roughness, transmission = 0.0, float(rng.uniform(0.5, 1.0)), 0.0
     if kind == "plastic":
         roughness = float(rng.uniform(0.05, 0.5))

@@ -106,7 +106,9 @@ class RunOptions:
 
     def __post_init__(self) -> None:
         if self.workers < 1 or self.retries < 0:
-            raise ConfigError(f"`workers`={self.workers} must be >= 1 and `retries`={self.retries} >= 0.")
+            raise ConfigError(
+                f"`workers`={self.workers} must be >= 1 and `retries`={self.retries} >= 0."
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -181,7 +183,9 @@ def _prepare_folder(plan: ObjectPlan, root: Path) -> None:
         except ManifestError:
             same = False
         if not same:
-            logger.warning("%s: plan changed since the last run; re-rendering it from scratch", plan.object_id)
+            logger.warning(
+                "%s: plan changed since the last run; re-rendering it from scratch", plan.object_id
+            )
             for name in _PAYLOAD_DIRS:
                 shutil.rmtree(root / name, ignore_errors=True)
     atomic_write_json(plan_path, body)
@@ -200,15 +204,21 @@ def _prepare_folder(plan: ObjectPlan, root: Path) -> None:
 
 
 def _run_worker(
-    plan: ObjectPlan, root: Path, options: RunOptions, threads: int, on_image: Callable[[float], None]
+    plan: ObjectPlan,
+    root: Path,
+    options: RunOptions,
+    threads: int,
+    on_image: Callable[[float], None],
 ) -> tuple[bool, str]:
     """One worker attempt; returns (success, reason)."""
     cmd = [options.python, "-m", "gaffer_data.render.worker", "--job", str(root / PLAN_NAME)]
     cmd += ["--threads", str(threads)]
     log_path = root / "_worker.log"
     reason = "the worker exited without a reason"
-    with open(log_path, "ab") as log:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1)
+    with (
+        open(log_path, "ab") as log,
+        subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1) as proc,
+    ):
         timer = None
         if options.timeout_s is not None:
             timer = threading.Timer(options.timeout_s, proc.kill)
@@ -304,7 +314,9 @@ def render_dataset(
     out = Path(out)
     ids = [oid for oid, _ in objects]
     if len(set(ids)) != len(ids):
-        raise InputError("`objects` holds duplicate object ids; rename the files or use sub-folders.")
+        raise InputError(
+            "`objects` holds duplicate object ids; rename the files or use sub-folders."
+        )
     out.mkdir(parents=True, exist_ok=True)
     earlier = _check_config(out, config)
     _dataset_json(out, config, earlier)
@@ -332,7 +344,12 @@ def render_dataset(
         root = out / OBJECTS_DIR / plan.object_id
         source = Path(plan.source)
         if not source.is_file():
-            return FailureRecord(object_id=plan.object_id, source=plan.source, attempts=0, reason="source file is missing")
+            return FailureRecord(
+                object_id=plan.object_id,
+                source=plan.source,
+                attempts=0,
+                reason="source file is missing",
+            )
         source_sha = sha256_file(source)
         reason = ""
         for attempt in range(1, options.retries + 2):
@@ -346,9 +363,14 @@ def render_dataset(
                     reason = f"finishing failed: {exc}"
             logger.warning("%s: attempt %d failed: %s", plan.object_id, attempt, reason)
             if reason.startswith("input:"):
-                return FailureRecord(object_id=plan.object_id, source=plan.source, attempts=attempt, reason=reason)
+                return FailureRecord(
+                    object_id=plan.object_id, source=plan.source, attempts=attempt, reason=reason
+                )
         return FailureRecord(
-            object_id=plan.object_id, source=plan.source, attempts=options.retries + 1, reason=reason
+            object_id=plan.object_id,
+            source=plan.source,
+            attempts=options.retries + 1,
+            reason=reason,
         )
 
     failures: list[FailureRecord] = []
@@ -364,7 +386,9 @@ def render_dataset(
             else:
                 failures.append(failure)
                 with lock, open(failures_path, "a", encoding="utf-8") as fh:
-                    fh.write(json.dumps({**dataclasses.asdict(failure), "time_utc": utc_now()}) + "\n")
+                    fh.write(
+                        json.dumps({**dataclasses.asdict(failure), "time_utc": utc_now()}) + "\n"
+                    )
             bar.set_postfix(done=len(rendered) + len(skipped), failed=len(failures))
     bar.close()
     keep = {f.object_id: f for f in earlier}

@@ -69,7 +69,9 @@ class _EnvmapCache:
         if ref.source not in self._sources:
             path = Path(ref.source)
             if not path.is_file():
-                raise InputError(f"environment map `{path}` is missing; restore the `--envmaps` folder.")
+                raise InputError(
+                    f"environment map `{path}` is missing; restore the `--envmaps` folder."
+                )
             self._sources[ref.source] = _scene.load_envmap_pixels(path)
             while len(self._sources) > 2:
                 self._sources.popitem(last=False)
@@ -112,7 +114,9 @@ def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
 
     def write(tmp: Path) -> None:
-        with OpenEXR.File(header, {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}) as f:
+        with OpenEXR.File(
+            header, {k: np.ascontiguousarray(v, np.float32) for k, v in channels.items()}
+        ) as f:
             f.write(str(tmp))
 
     atomic_write(path, write)
@@ -211,7 +215,9 @@ def render_plan(plan: ObjectPlan, root: Path, threads: int) -> None:
                 mask_pending = False
             emit("image", path=lit.exr, seconds=time.perf_counter() - start)
         area = view.area
-        if area is None or _done(root, area.exr, area.png, area.normal, area.albedo, area.depth, view.alpha):
+        if area is None or _done(
+            root, area.exr, area.png, area.normal, area.albedo, area.depth, view.alpha
+        ):
             continue
         start = time.perf_counter()
         scene.world = grey
@@ -260,7 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         emit("error", kind="input", message=str(exc))
         return 2
-    except Exception as exc:  # the parent records the reason and retries; never a traceback-less death
+    except (
+        Exception
+    ) as exc:  # the parent records the reason and retries; never a traceback-less death
         logger.exception("rendering failed")
         emit("error", kind=type(exc).__name__, message=str(exc))
         return 1

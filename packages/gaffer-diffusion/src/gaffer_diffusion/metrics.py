@@ -1,0 +1,343 @@
+"""Image metrics for relighting (paper §4, official implementation §5).
+
+- PSNR per image, 10 log10(1 / MSE) on [0, 1] images, then averaged (the authors' protocol).
+- SSIM via torchmetrics (Gaussian window 11, sigma 1.5, data range 1).
+- A perceptual distance, always labelled with what it is:
+  - "lpips-alex": standard LPIPS v0.1 (AlexNet), only when the user passes a local file with the ImageNet
+    AlexNet backbone (torchvision's `alexnet-owt-7be5be79.pth`); heads from torchmetrics.
+  - "stlpips-alex": otherwise, shift-tolerant LPIPS from the `stlpips-pytorch` wheel, which ships its
+    complete weights (no download). It is NOT standard LPIPS; numbers are not comparable with the paper's.
+  - neither available: the perceptual column is reported as unavailable, with the reason.
+- Channel alignment (NeRFactor / InvRender): pred'_c = pred_c * mean(gt_c) / mean(pred_c), clipped to
+  [0, 1]. The means are taken over the whole image ("aligned-image") or over a mask ("aligned-mask"); the
+  paper does not say which, so both are reported and labelled. Metrics themselves always use the full
+  image, as the authors' code does.
+"""
+
+import importlib.util
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion._perceptual import LpipsAlex, StLpipsAlex
+from gaffer_diffusion._validate import check_image_batch
+from gaffer_diffusion.errors import MetricUnavailableError, MissingDependencyError, ShapeError
+
+PerceptualName = Literal["stlpips-alex", "lpips-alex"]
+
+_EPS = 1e-8
+
+
+def _check_pair(pred: Tensor, gt: Tensor) -> None:
+    check_image_batch("pred", pred)
+    check_image_batch("gt", gt)
+    if pred.shape != gt.shape:
+        raise ShapeError("pred", tuple(pred.shape), f"the shape of `gt` {tuple(gt.shape)}")
+
+
+def psnr(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+    """Per-image PSNR in dB for images in [0, 1] (inf for identical images).
+
+    Example:
+        >>> import torch
+        >>> round(float(psnr(torch.zeros(1, 3, 4, 4), torch.full((1, 3, 4, 4), 0.1))[0]), 3)
+        20.0
+    """
+    _check_pair(pred, gt)
+    mse = ((pred.double() - gt.double()) ** 2).mean(dim=(1, 2, 3))
+    return (10.0 * torch.log10(1.0 / mse)).float()
+
+
+def ssim(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+    """Per-image SSIM (torchmetrics; Gaussian 11, sigma 1.5, data range 1).
+
+    Raises:
+        MissingDependencyError: without torchmetrics (`pip install "gaffer-diffusion[metrics]"`).
+    """
+    _check_pair(pred, gt)
+    try:
+        from torchmetrics.functional.image import structural_similarity_index_measure
+    except ImportError as exc:
+        raise MissingDependencyError(
+            'SSIM needs torchmetrics: pip install "gaffer-diffusion[metrics]"'
+        ) from exc
+    out = structural_similarity_index_measure(
+        pred.float(),
+        gt.float(),
+        gaussian_kernel=True,
+        sigma=1.5,
+        kernel_size=11,
+        data_range=1.0,
+        reduction="none",
+    )
+    return torch.as_tensor(out).reshape(-1)
+
+
+def channel_align(
+    pred: Float[Tensor, "B 3 H W"],
+    gt: Float[Tensor, "B 3 H W"],
+    mask: Float[Tensor, "B 1 H W"] | None = None,
+) -> Float[Tensor, "B 3 H W"]:
+    """Rescale each channel of `pred` so its mean matches `gt`'s: pred_c * mean(gt_c) / mean(pred_c).
+
+    Args:
+        pred: prediction in [0, 1].
+        gt: ground truth in [0, 1].
+        mask: `[B, 1, H, W]` weights in [0, 1]; the means are taken over it. None: whole image.
+
+    Returns:
+        The aligned prediction, clipped to [0, 1].
+    """
+    _check_pair(pred, gt)
+    if mask is None:
+        w = torch.ones_like(pred[:, :1])
+    else:
+        if mask.ndim != 4 or mask.shape[1] != 1 or mask.shape[2:] != pred.shape[2:]:
+            raise ShapeError("mask", tuple(mask.shape), f"[B, 1, {pred.shape[2]}, {pred.shape[3]}]")
+        w = mask.to(pred.dtype)
+    wsum = w.sum(dim=(2, 3)).clamp_min(_EPS)
+    mean_pred = (pred * w).sum(dim=(2, 3)) / wsum  # [B, 3]
+    mean_gt = (gt * w).sum(dim=(2, 3)) / wsum
+    scale = mean_gt / mean_pred.clamp_min(_EPS)
+    return (pred * scale[:, :, None, None]).clamp(0.0, 1.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class PerceptualMetric:
+    """A loaded LPIPS-family network with its honest label.
+
+    Attributes:
+        name: "lpips-alex" (standard) or "stlpips-alex" (shift-tolerant, not standard LPIPS).
+        source: the weights file(s) used.
+    """
+
+    name: PerceptualName
+    source: str
+    network: torch.nn.Module = field(repr=False, compare=False)
+
+    @torch.no_grad()
+    def __call__(self, pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+        """Per-image distance between images in [0, 1] (lower is better)."""
+        _check_pair(pred, gt)
+        p = next(self.network.parameters())
+        a = (pred * 2 - 1).to(device=p.device, dtype=p.dtype)
+        b = (gt * 2 - 1).to(device=p.device, dtype=p.dtype)
+        return self.network(a, b).float().cpu()
+
+
+def _package_dir(name: str) -> Path | None:
+    spec = importlib.util.find_spec(name)
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def stlpips_weights_path() -> Path:
+    """The shift-tolerant AlexNet weights inside the installed `stlpips-pytorch` wheel.
+
+    Raises:
+        MetricUnavailableError: when the wheel or its weights file is missing.
+    """
+    root = _package_dir("stlpips_pytorch")
+    if root is None:
+        raise MetricUnavailableError(
+            "stlpips-pytorch is not installed: pip install \"gaffer-diffusion[metrics]\""
+        )
+    path = root / "weights" / "vST0.0" / "alex_shift_tolerant.pth"
+    if not path.is_file():
+        raise MetricUnavailableError(f"stlpips-pytorch is installed but {path} is missing.")
+    return path
+
+
+def load_perceptual(lpips_backbone: str | Path | None = None) -> PerceptualMetric:
+    """Load the perceptual metric, offline.
+
+    Args:
+        lpips_backbone: a local torchvision AlexNet state dict (`alexnet-owt-7be5be79.pth`). Given:
+            standard LPIPS ("lpips-alex", heads from torchmetrics). None: shift-tolerant LPIPS
+            ("stlpips-alex") from the stlpips-pytorch wheel.
+
+    Raises:
+        MetricUnavailableError: when the weights cannot be found or loaded (the message says why).
+    """
+    if lpips_backbone is not None:
+        backbone = Path(lpips_backbone).expanduser()
+        if not backbone.is_file():
+            raise MetricUnavailableError(
+                f"`lpips_backbone` {backbone} does not exist. It must be torchvision's ImageNet AlexNet "
+                "state dict (alexnet-owt-7be5be79.pth), downloaded beforehand."
+            )
+        tm = _package_dir("torchmetrics")
+        heads = tm / "functional" / "image" / "lpips_models" / "alex.pth" if tm else None
+        if heads is None or not heads.is_file():
+            raise MetricUnavailableError(
+                "standard LPIPS needs the linear heads shipped with torchmetrics: "
+                'pip install "gaffer-diffusion[metrics]"'
+            )
+        net = LpipsAlex()
+        try:
+            net.load_backbone(torch.load(backbone, map_location="cpu", weights_only=True))
+            net.load_heads(torch.load(heads, map_location="cpu", weights_only=True))
+        except (KeyError, RuntimeError, OSError) as exc:
+            raise MetricUnavailableError(
+                f"could not load LPIPS AlexNet weights from {backbone} / {heads}: {exc}"
+            ) from exc
+        return PerceptualMetric(name="lpips-alex", source=f"{backbone} + {heads}", network=net)
+    path = stlpips_weights_path()
+    net = StLpipsAlex()
+    try:
+        net.load_state_dict(torch.load(path, map_location="cpu", weights_only=True), strict=True)
+    except (RuntimeError, OSError) as exc:
+        raise MetricUnavailableError(f"could not load shift-tolerant LPIPS from {path}: {exc}") from exc
+    return PerceptualMetric(name="stlpips-alex", source=str(path), network=net)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ImageScores:
+    """Scores of one image (or their means). `perceptual` is None when unavailable."""
+
+    psnr: float
+    ssim: float
+    perceptual: float | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ItemMetrics:
+    """Scores of one prediction, raw and channel-aligned.
+
+    Attributes:
+        name: item label (e.g. file name).
+        raw: the prediction as is.
+        aligned_image: channel-aligned with means over the whole image.
+        aligned_mask: channel-aligned with means over the mask (None without a mask).
+    """
+
+    name: str
+    raw: ImageScores
+    aligned_image: ImageScores
+    aligned_mask: ImageScores | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class MetricsReport:
+    """Per-item and mean scores, with the perceptual metric's label or the reason it is missing."""
+
+    items: tuple[ItemMetrics, ...]
+    mean_raw: ImageScores
+    mean_aligned_image: ImageScores
+    mean_aligned_mask: ImageScores | None
+    perceptual_name: PerceptualName | None
+    perceptual_unavailable_reason: str | None = None
+
+    def to_json(self) -> str:
+        """The report as JSON (`inf` PSNR written as a string)."""
+
+        def fix(o: object) -> object:
+            if isinstance(o, float) and not math.isfinite(o):
+                return str(o)
+            if isinstance(o, dict):
+                return {k: fix(v) for k, v in o.items()}
+            if isinstance(o, list):
+                return [fix(v) for v in o]
+            return o
+
+        return json.dumps(fix(asdict(self)), indent=2)
+
+    def to_markdown(self) -> str:
+        """A markdown table of the means, each row labelled."""
+        pname = self.perceptual_name or "perceptual (unavailable)"
+        rows = [
+            f"| variant | PSNR | SSIM | {pname} |",
+            "|---|---|---|---|",
+        ]
+        variants = [("raw", self.mean_raw), ("aligned (whole image)", self.mean_aligned_image)]
+        if self.mean_aligned_mask is not None:
+            variants.append(("aligned (mask)", self.mean_aligned_mask))
+        for label, s in variants:
+            p = "n/a" if s.perceptual is None else f"{s.perceptual:.4f}"
+            rows.append(f"| {label} | {s.psnr:.3f} | {s.ssim:.4f} | {p} |")
+        if self.perceptual_unavailable_reason:
+            rows.append(f"\nPerceptual metric unavailable: {self.perceptual_unavailable_reason}")
+        if self.perceptual_name == "stlpips-alex":
+            rows.append("\nstlpips-alex is shift-tolerant LPIPS, not standard LPIPS.")
+        rows.append(f"\n{len(self.items)} items.")
+        return "\n".join(rows)
+
+
+def _scores(pred: Tensor, gt: Tensor, perceptual: PerceptualMetric | None) -> list[ImageScores]:
+    p = psnr(pred, gt).tolist()
+    s = ssim(pred, gt).tolist()
+    lp = perceptual(pred, gt).tolist() if perceptual is not None else [None] * len(p)
+    return [ImageScores(psnr=a, ssim=b, perceptual=c) for a, b, c in zip(p, s, lp, strict=True)]
+
+
+def _mean(scores: list[ImageScores]) -> ImageScores:
+    n = len(scores)
+    perc = [s.perceptual for s in scores]
+    return ImageScores(
+        psnr=sum(s.psnr for s in scores) / n,
+        ssim=sum(s.ssim for s in scores) / n,
+        perceptual=None if any(v is None for v in perc) else sum(perc) / n,  # type: ignore[misc]
+    )
+
+
+def evaluate_images(
+    pred: Float[Tensor, "B 3 H W"],
+    gt: Float[Tensor, "B 3 H W"],
+    *,
+    mask: Float[Tensor, "B 1 H W"] | None = None,
+    names: list[str] | None = None,
+    perceptual: PerceptualMetric | None | Literal["auto"] = "auto",
+) -> MetricsReport:
+    """Score predictions against ground truth: raw and channel-aligned, per item and mean.
+
+    Args:
+        pred: predictions in [0, 1] (the authors score 8-bit PNGs, full image, white background).
+        gt: ground truth in [0, 1].
+        mask: optional object mask for the masked channel alignment.
+        names: item labels; default "0", "1", ...
+        perceptual: a loaded metric, None to skip, or "auto" (ST-LPIPS if it loads; otherwise the
+            report says why not).
+
+    Returns:
+        A `MetricsReport`.
+    """
+    _check_pair(pred, gt)
+    reason = None
+    if perceptual == "auto":
+        try:
+            perceptual = load_perceptual()
+        except MetricUnavailableError as exc:
+            perceptual, reason = None, str(exc)
+    elif perceptual is None:
+        reason = "not requested"
+    pred, gt = pred.float().cpu(), gt.float().cpu()
+    raw = _scores(pred, gt, perceptual)
+    al_img = _scores(channel_align(pred, gt), gt, perceptual)
+    al_mask = _scores(channel_align(pred, gt, mask.float().cpu()), gt, perceptual) if mask is not None else None
+    labels = names or [str(i) for i in range(pred.shape[0])]
+    if len(labels) != pred.shape[0]:
+        raise ShapeError("names", len(labels), f"{pred.shape[0]} labels (one per item)")
+    items = tuple(
+        ItemMetrics(
+            name=labels[i],
+            raw=raw[i],
+            aligned_image=al_img[i],
+            aligned_mask=al_mask[i] if al_mask is not None else None,
+        )
+        for i in range(pred.shape[0])
+    )
+    return MetricsReport(
+        items=items,
+        mean_raw=_mean(raw),
+        mean_aligned_image=_mean(al_img),
+        mean_aligned_mask=_mean(al_mask) if al_mask is not None else None,
+        perceptual_name=perceptual.name if perceptual is not None else None,
+        perceptual_unavailable_reason=reason,
+    )
