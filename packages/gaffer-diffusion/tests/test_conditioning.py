@@ -71,8 +71,12 @@ def test_clip_embedding_is_the_projected_image_embedding(model) -> None:
 def test_posterior_sample_mode_is_seeded_and_differs_from_mode(model) -> None:
     cond = random_conditions(1)
     mode = encode_conditions(model, cond)
-    a = encode_conditions(model, cond, latent_mode="sample", generator=torch.Generator().manual_seed(1))
-    b = encode_conditions(model, cond, latent_mode="sample", generator=torch.Generator().manual_seed(1))
+    a = encode_conditions(
+        model, cond, latent_mode="sample", generator=torch.Generator().manual_seed(1)
+    )
+    b = encode_conditions(
+        model, cond, latent_mode="sample", generator=torch.Generator().manual_seed(1)
+    )
     assert torch.equal(a.hdr_latents, b.hdr_latents)
     assert not torch.equal(a.hdr_latents, mode.hdr_latents)
     assert torch.equal(encode_conditions(model, cond).image_latents, mode.image_latents)
@@ -94,8 +98,10 @@ def test_condition_validation_errors() -> None:
     assert info.value.actual == "(1, 64, 64, 3)"
     with pytest.raises(ShapeError, match="`hdr`"):
         LightingMaps(ldr=x, hdr=x[:, :, :32])
-    with pytest.raises(ShapeError, match="lighting.ldr"):
-        RelightingConditions(image=x, lighting=LightingMaps(ldr=x[:, :, :32, :32], hdr=x[:, :, :32, :32]))
+    with pytest.raises(ShapeError, match=r"lighting\.ldr"):
+        RelightingConditions(
+            image=x, lighting=LightingMaps(ldr=x[:, :, :32, :32], hdr=x[:, :, :32, :32])
+        )
     nan = x.clone()
     nan[0, 0, 0, 0] = float("nan")
     with pytest.raises(InputValueError, match="NaN"):

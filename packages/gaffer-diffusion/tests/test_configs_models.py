@@ -30,9 +30,19 @@ def test_neural_gaffer_256_is_the_authors_shape() -> None:
     assert cfg.vae.block_out_channels == (128, 256, 512, 512)
     assert cfg.vae.scaling_factor == pytest.approx(0.18215)
     enc = cfg.image_encoder
-    assert (enc.hidden_size, enc.num_hidden_layers, enc.patch_size, enc.image_size) == (1024, 24, 14, 224)
+    assert (enc.hidden_size, enc.num_hidden_layers, enc.patch_size, enc.image_size) == (
+        1024,
+        24,
+        14,
+        224,
+    )
     s = cfg.scheduler
-    assert (s.beta_start, s.beta_end, s.beta_schedule, s.steps_offset) == (0.00085, 0.012, "scaled_linear", 1)
+    assert (s.beta_start, s.beta_end, s.beta_schedule, s.steps_offset) == (
+        0.00085,
+        0.012,
+        "scaled_linear",
+        1,
+    )
 
 
 @pytest.mark.slow
@@ -78,7 +88,9 @@ def test_expand_conv_in_zero_inits_new_channels_and_preserves_output() -> None:
         old_w = unet.conv_in.weight.clone()
         old_b = unet.conv_in.bias.clone()
         expand_conv_in(unet, 16)
-        after = unet(torch.cat([x, torch.randn(1, 8, 8, 8) * 0], 1), 10, encoder_hidden_states=ctx).sample
+        after = unet(
+            torch.cat([x, torch.randn(1, 8, 8, 8) * 0], 1), 10, encoder_hidden_states=ctx
+        ).sample
     assert unet.conv_in.weight.shape == (32, 16, 3, 3)
     assert unet.config.in_channels == 16
     assert torch.equal(unet.conv_in.weight[:, :8], old_w)

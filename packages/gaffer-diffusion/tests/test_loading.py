@@ -3,7 +3,12 @@ import json
 import pytest
 import torch
 
-from gaffer_diffusion import CheckpointMismatchError, CheckpointNotFoundError, RelightPipeline, SamplingConfig
+from gaffer_diffusion import (
+    CheckpointMismatchError,
+    CheckpointNotFoundError,
+    RelightPipeline,
+    SamplingConfig,
+)
 from gaffer_diffusion.loading import (
     load_authors_release,
     load_pretrained,
@@ -46,7 +51,9 @@ def test_authors_release_is_bit_identical_to_direct_construction(
 ) -> None:
     model, cond, images = reference
     base, _ = release
-    ckpt = write_fake_authors_checkpoint(model, tmp_path / "checkpoint-80000", file_format=file_format)
+    ckpt = write_fake_authors_checkpoint(
+        model, tmp_path / "checkpoint-80000", file_format=file_format
+    )
     result = load_authors_release(tmp_path, base)  # the parent folder is accepted too
     assert result.report.ok, result.report.summary()
     assert result.model.unet.config.in_channels == 16
@@ -62,13 +69,15 @@ def test_mismatched_checkpoint_is_reported(tmp_path, reference, release) -> None
     model, _, _ = reference
     base, ckpt = release
     state = read_state_dict(ckpt / "model.safetensors")
-    state["conv_in.weight"] = state["conv_in.weight"][:, :8].contiguous()  # a Zero123-shaped conv_in
+    state["conv_in.weight"] = state["conv_in.weight"][
+        :, :8
+    ].contiguous()  # a Zero123-shaped conv_in
     del state["conv_out.bias"]
     state["cc_projection.weight"] = torch.zeros(2, 2)
     bad = tmp_path / "checkpoint-80000"
     bad.mkdir()
     torch.save(state, bad / "pytorch_model.bin")
-    with pytest.raises(CheckpointMismatchError, match="conv_in.weight") as info:
+    with pytest.raises(CheckpointMismatchError, match=r"conv_in\.weight") as info:
         load_authors_release(bad, base)
     assert "strict=False" in str(info.value)
     result = load_authors_release(bad, base, strict=False)
@@ -88,14 +97,16 @@ def test_wrapper_prefix_is_stripped(tmp_path, reference, release) -> None:
     base, _ = release
     folder = tmp_path / "checkpoint-80000"
     folder.mkdir()
-    torch.save({f"module.{k}": v for k, v in model.unet.state_dict().items()}, folder / "pytorch_model.bin")
+    torch.save(
+        {f"module.{k}": v for k, v in model.unet.state_dict().items()}, folder / "pytorch_model.bin"
+    )
     result = load_authors_release(folder, base)
     assert result.report.ok and result.report.stripped_prefix == "module."
 
 
 def test_missing_files_name_the_file_where_and_how(tmp_path, release) -> None:
     base, ckpt = release
-    with pytest.raises(CheckpointNotFoundError, match="model.safetensors") as info:
+    with pytest.raises(CheckpointNotFoundError, match=r"model\.safetensors") as info:
         load_authors_release(tmp_path, base)
     msg = str(info.value)
     assert str(tmp_path) in msg and "neural_gaffer_res256_ckpt.zip" in msg
@@ -104,7 +115,7 @@ def test_missing_files_name_the_file_where_and_how(tmp_path, release) -> None:
         load_authors_release(ckpt, tmp_path / "nowhere")
     empty = tmp_path / "base"
     (empty / "unet").mkdir(parents=True)
-    with pytest.raises(CheckpointNotFoundError, match="unet/config.json") as info:
+    with pytest.raises(CheckpointNotFoundError, match=r"unet/config\.json") as info:
         load_authors_release(ckpt, empty)
     assert "Zero-1-to-3 XL" in str(info.value)
 
@@ -136,7 +147,7 @@ def test_own_format_round_trip(tmp_path, reference) -> None:
     with pytest.raises(CheckpointMismatchError, match="schema_version"):
         load_pretrained(tmp_path / "ours")
     (tmp_path / "ours" / "gaffer_model.json").unlink()
-    with pytest.raises(CheckpointNotFoundError, match="gaffer_model.json"):
+    with pytest.raises(CheckpointNotFoundError, match=r"gaffer_model\.json"):
         load_pretrained(tmp_path / "ours")
 
 

@@ -62,13 +62,17 @@ def test_report_labels_variants_and_means() -> None:
     mask = torch.ones(3, 1, 32, 32)
     report = evaluate_images(pred * 0.7, gt, mask=mask, names=["a", "b", "c"], perceptual=None)
     assert [i.name for i in report.items] == ["a", "b", "c"]
-    assert report.perceptual_name is None and report.perceptual_unavailable_reason == "not requested"
+    assert (
+        report.perceptual_name is None and report.perceptual_unavailable_reason == "not requested"
+    )
     assert report.mean_aligned_image.psnr > report.mean_raw.psnr
     assert report.mean_raw.psnr == pytest.approx(sum(i.raw.psnr for i in report.items) / 3)
     md = report.to_markdown()
     assert "aligned (whole image)" in md and "aligned (mask)" in md and "n/a" in md
     data = json.loads(report.to_json())
-    assert data["items"][0]["aligned_mask"]["psnr"] == pytest.approx(report.items[0].aligned_mask.psnr)
+    assert data["items"][0]["aligned_mask"]["psnr"] == pytest.approx(
+        report.items[0].aligned_mask.psnr
+    )
 
 
 def test_shape_mismatch_raises() -> None:

@@ -126,7 +126,9 @@ def test_many_seeds_reuse_the_encoding(pipe, monkeypatch) -> None:
 def test_every_scheduler_runs_and_converges_to_ddim(pipe, scheduler) -> None:
     enc = pipe.encode(random_conditions(1))
     noise = pipe.initial_noise(1, seeds=[0])
-    out = pipe.sample(enc, SamplingConfig(num_inference_steps=10, scheduler=scheduler), latents=noise)
+    out = pipe.sample(
+        enc, SamplingConfig(num_inference_steps=10, scheduler=scheduler), latents=noise
+    )
     ddim = pipe.sample(enc, SamplingConfig(num_inference_steps=10), latents=noise)
     assert torch.isfinite(out.images).all()
     # same ODE, different solvers: close on a random tiny model, identical for DDIM
@@ -145,7 +147,9 @@ def test_half_precision_runs_close_to_fp32(dtype) -> None:
 def test_eager_attention_matches_sdpa() -> None:
     cond = random_conditions(1)
     a = RelightPipeline(tiny_model())(cond, FAST, seeds=[0]).images
-    b = RelightPipeline(tiny_model(), RuntimeConfig(attention="eager"))(cond, FAST, seeds=[0]).images
+    b = RelightPipeline(tiny_model(), RuntimeConfig(attention="eager"))(
+        cond, FAST, seeds=[0]
+    ).images
     torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4)
 
 
@@ -236,6 +240,8 @@ def test_cuda_half_precision(dtype) -> None:
 
 @pytest.mark.gpu
 def test_cuda_compile_inductor() -> None:
-    pipe = RelightPipeline(tiny_model(), RuntimeConfig(device="cuda", dtype="bfloat16", compile=True))
+    pipe = RelightPipeline(
+        tiny_model(), RuntimeConfig(device="cuda", dtype="bfloat16", compile=True)
+    )
     out = pipe(random_conditions(4), FAST, seeds=[0, 1, 2, 3])
     assert torch.isfinite(out.images).all()

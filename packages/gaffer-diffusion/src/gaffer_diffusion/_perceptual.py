@@ -36,7 +36,9 @@ class _BlurPool(nn.Module):
         self.register_buffer("filt", filt[None, None].repeat(channels, 1, 1, 1))
 
     def forward(self, x: Tensor) -> Tensor:
-        return F.conv2d(F.pad(x, (2, 2, 2, 2), mode="reflect"), self.filt, stride=2, groups=x.shape[1])
+        return F.conv2d(
+            F.pad(x, (2, 2, 2, 2), mode="reflect"), self.filt, stride=2, groups=x.shape[1]
+        )
 
 
 class _NetLin(nn.Module):
@@ -152,13 +154,17 @@ class LpipsAlex(_LpipsBase):
         for slice_idx, layers in enumerate(((0,), (3,), (6,), (8,), (10,)), start=1):
             for layer in layers:
                 for p in ("weight", "bias"):
-                    mapped[f"slice{slice_idx}.{layer}.{p}"] = torchvision_state[f"features.{layer}.{p}"]
+                    mapped[f"slice{slice_idx}.{layer}.{p}"] = torchvision_state[
+                        f"features.{layer}.{p}"
+                    ]
         self.net.load_state_dict(mapped, strict=True)
 
     def load_heads(self, heads_state: dict[str, Tensor]) -> None:
         """Load the LPIPS v0.1 linear heads (`lin{i}.model.1.weight` keys)."""
         lins = {k: v for k, v in heads_state.items() if k.startswith("lin")}
-        missing = [f"lin{i}.model.1.weight" for i in range(5) if f"lin{i}.model.1.weight" not in lins]
+        missing = [
+            f"lin{i}.model.1.weight" for i in range(5) if f"lin{i}.model.1.weight" not in lins
+        ]
         if missing:
             raise KeyError(f"LPIPS head weights lack {missing}")
         for k, v in lins.items():

@@ -25,7 +25,12 @@ from PIL import Image
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions, lighting_from_envmap
 from gaffer_diffusion.configs import PRESETS, get_preset
 from gaffer_diffusion.errors import ConfigError, GafferDiffusionError, InputValueError
-from gaffer_diffusion.loading import MANIFEST_NAME, load_authors_release, load_pretrained, save_pretrained
+from gaffer_diffusion.loading import (
+    MANIFEST_NAME,
+    load_authors_release,
+    load_pretrained,
+    save_pretrained,
+)
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.preprocess import load_object_image
@@ -40,9 +45,13 @@ def _parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("relight", help="relight one object image under an environment map")
     r.add_argument("image", type=Path, help="object image; RGBA, or RGB with --mask")
-    r.add_argument("--mask", type=Path, help="object mask (white = object) for images without alpha")
+    r.add_argument(
+        "--mask", type=Path, help="object mask (white = object) for images without alpha"
+    )
     light = r.add_argument_group("lighting: --envmap with a pose, or pre-encoded --ldr/--hdr maps")
-    light.add_argument("--envmap", type=Path, help="equirectangular HDR map (.exr/.hdr), Blender z-up")
+    light.add_argument(
+        "--envmap", type=Path, help="equirectangular HDR map (.exr/.hdr), Blender z-up"
+    )
     light.add_argument("--w2c", type=Path, help="3x4 or 4x4 Blender world-to-camera .npy")
     light.add_argument("--azimuth", type=float, help="orbit camera azimuth, degrees")
     light.add_argument("--elevation", type=float, help="orbit camera elevation, degrees")
@@ -60,27 +69,43 @@ def _parser() -> argparse.ArgumentParser:
         default="zero",
         help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail",
     )
-    r.add_argument("--checkpoint", type=Path, required=True, help="our model folder or checkpoint-80000/")
-    r.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)")
-    r.add_argument("--out", type=Path, required=True, help="output PNG (turntable: frame prefix + GIF)")
+    r.add_argument(
+        "--checkpoint", type=Path, required=True, help="our model folder or checkpoint-80000/"
+    )
+    r.add_argument(
+        "--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)"
+    )
+    r.add_argument(
+        "--out", type=Path, required=True, help="output PNG (turntable: frame prefix + GIF)"
+    )
     r.add_argument("--steps", type=int, default=50)
     r.add_argument("--guidance", type=float, default=3.0)
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--scheduler", choices=SCHEDULERS, default="ddim")
-    r.add_argument("--turntable", type=int, default=0, help="N frames of the light spinning about up")
+    r.add_argument(
+        "--turntable", type=int, default=0, help="N frames of the light spinning about up"
+    )
     r.add_argument("--batch-size", type=int, default=4, help="frames per batch (turntable)")
     r.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     r.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
 
-    e = sub.add_parser("evaluate", help="score predicted images against ground truth (matched by name)")
+    e = sub.add_parser(
+        "evaluate", help="score predicted images against ground truth (matched by name)"
+    )
     e.add_argument("--pred", type=Path, required=True)
     e.add_argument("--gt", type=Path, required=True)
-    e.add_argument("--mask-dir", type=Path, help="masks with the same file names (channel alignment)")
-    e.add_argument("--lpips-backbone", type=Path, help="torchvision AlexNet weights for standard LPIPS")
+    e.add_argument(
+        "--mask-dir", type=Path, help="masks with the same file names (channel alignment)"
+    )
+    e.add_argument(
+        "--lpips-backbone", type=Path, help="torchvision AlexNet weights for standard LPIPS"
+    )
     e.add_argument("--json", type=Path, help="write the full report as JSON")
     e.add_argument("--markdown", type=Path, help="write the table of means as markdown")
 
-    i = sub.add_parser("init-random", help="save a random-weight model in our format (demos, tests)")
+    i = sub.add_parser(
+        "init-random", help="save a random-weight model in our format (demos, tests)"
+    )
     i.add_argument("--preset", choices=PRESETS, default="tiny")
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--out", type=Path, required=True)
@@ -118,7 +143,9 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
             raise ConfigError("`--turntable` needs `--envmap` (pre-encoded maps cannot be spun).")
         return LightingMaps(ldr=_read_map_png(args.ldr, size), hdr=_read_map_png(args.hdr, size))
     if args.envmap is None:
-        raise ConfigError("Pass `--envmap ENV.exr` with a pose, or pre-encoded `--ldr` and `--hdr` maps.")
+        raise ConfigError(
+            "Pass `--envmap ENV.exr` with a pose, or pre-encoded `--ldr` and `--hdr` maps."
+        )
     from gaffer_envmap.io import read_envmap
     from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 
@@ -129,7 +156,9 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
     elif args.azimuth is not None and args.elevation is not None:
         pose = orbit_w2c_blender(args.azimuth, args.elevation)
     else:
-        raise ConfigError("Give the camera: `--w2c W2C.npy`, or both `--azimuth` and `--elevation`.")
+        raise ConfigError(
+            "Give the camera: `--w2c W2C.npy`, or both `--azimuth` and `--elevation`."
+        )
     env = read_envmap(args.envmap, sanitize=args.sanitize)
     n = max(frames, 1)
     spin = torch.arange(n, dtype=torch.float64) * (360.0 / n) if frames > 1 else 0.0
@@ -171,7 +200,9 @@ def _relight(args: argparse.Namespace) -> int:
         for k, frame in enumerate(frames):
             _save_png(Path(f"{stem}_{k:03d}.png"), frame)
         gif = [Image.open(Path(f"{stem}_{k:03d}.png")).convert("RGB") for k in range(len(frames))]
-        gif[0].save(stem.with_suffix(".gif"), save_all=True, append_images=gif[1:], duration=80, loop=0)
+        gif[0].save(
+            stem.with_suffix(".gif"), save_all=True, append_images=gif[1:], duration=80, loop=0
+        )
         print(f"wrote {len(frames)} frames {stem}_000.png ... and {stem.with_suffix('.gif')}")
     else:
         _save_png(args.out, frames[0])
@@ -195,12 +226,20 @@ def _read_dir_images(folder: Path, names: Sequence[str], channels: str) -> torch
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from gaffer_diffusion.metrics import evaluate_images, load_perceptual
     from gaffer_diffusion.errors import MetricUnavailableError
+    from gaffer_diffusion.metrics import evaluate_images, load_perceptual
 
     exts = {".png", ".jpg", ".jpeg"}
-    pred_names = {p.name for p in args.pred.iterdir() if p.suffix.lower() in exts} if args.pred.is_dir() else set()
-    gt_names = {p.name for p in args.gt.iterdir() if p.suffix.lower() in exts} if args.gt.is_dir() else set()
+    pred_names = (
+        {p.name for p in args.pred.iterdir() if p.suffix.lower() in exts}
+        if args.pred.is_dir()
+        else set()
+    )
+    gt_names = (
+        {p.name for p in args.gt.iterdir() if p.suffix.lower() in exts}
+        if args.gt.is_dir()
+        else set()
+    )
     names = sorted(pred_names & gt_names)
     if not names:
         raise InputValueError(

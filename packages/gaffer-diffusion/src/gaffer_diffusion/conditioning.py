@@ -54,7 +54,9 @@ class LightingMaps:
         check_image_batch("ldr", self.ldr)
         check_image_batch("hdr", self.hdr)
         if self.ldr.shape != self.hdr.shape:
-            raise ShapeError("hdr", tuple(self.hdr.shape), f"the shape of `ldr` {tuple(self.ldr.shape)}")
+            raise ShapeError(
+                "hdr", tuple(self.hdr.shape), f"the shape of `ldr` {tuple(self.ldr.shape)}"
+            )
         object.__setattr__(self, "ldr", check_unit_range("ldr", self.ldr))
         object.__setattr__(self, "hdr", check_unit_range("hdr", self.hdr))
 
@@ -148,7 +150,9 @@ class EncodedConditions:
             clip_embeds=self.clip_embeds[idx],
         )
 
-    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> "EncodedConditions":
+    def to(
+        self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
+    ) -> "EncodedConditions":
         """A copy on another device and/or dtype."""
         return EncodedConditions(
             image_latents=self.image_latents.to(device=device, dtype=dtype),
@@ -158,7 +162,9 @@ class EncodedConditions:
         )
 
 
-def clip_preprocess(image_pm1: Float[Tensor, "B 3 H W"], image_size: int) -> Float[Tensor, "B 3 S S"]:
+def clip_preprocess(
+    image_pm1: Float[Tensor, "B 3 H W"], image_size: int
+) -> Float[Tensor, "B 3 S S"]:
     """The authors' CLIP preprocessing of an image in [-1, 1] (official implementation §1).
 
     Bicubic resize to `image_size` (align_corners=True, no antialias), [-1, 1] -> [0, 1], then the OpenAI
@@ -172,7 +178,11 @@ def clip_preprocess(image_pm1: Float[Tensor, "B 3 H W"], image_size: int) -> Flo
         `[B, 3, image_size, image_size]` normalised pixel values.
     """
     x = F.interpolate(
-        image_pm1, size=(image_size, image_size), mode="bicubic", align_corners=True, antialias=False
+        image_pm1,
+        size=(image_size, image_size),
+        mode="bicubic",
+        align_corners=True,
+        antialias=False,
     )
     x = (x + 1.0) / 2.0
     mean = torch.tensor(CLIP_MEAN, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)

@@ -327,7 +327,9 @@ def get_preset(name: PresetName) -> ModelConfig:
     if name == "neural-gaffer-256":
         return ModelConfig(name=name)
     if name == "neural-gaffer-512":
-        return dataclasses.replace(ModelConfig(name="neural-gaffer-256").with_resolution(512), name=name)
+        return dataclasses.replace(
+            ModelConfig(name="neural-gaffer-256").with_resolution(512), name=name
+        )
     if name == "tiny":
         return _tiny()
     raise ConfigError(f"`name` is {name!r}; expected one of {list(PRESETS)}.")

@@ -146,12 +146,23 @@ def read_state_dict(path: PathLike) -> dict[str, torch.Tensor]:
         if p.suffix == ".safetensors":
             return load_file(str(p), device="cpu")
         loaded = torch.load(p, map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError, ValueError, KeyError, SafetensorError, pickle.UnpicklingError) as exc:
+    except (
+        OSError,
+        RuntimeError,
+        ValueError,
+        KeyError,
+        SafetensorError,
+        pickle.UnpicklingError,
+    ) as exc:
         raise CheckpointMismatchError(
             f"Could not read weights file {p}: {exc}. Is the download complete (compare its size with "
             "the release) and is it a safetensors / torch state dict?"
         ) from exc
-    if isinstance(loaded, dict) and "state_dict" in loaded and isinstance(loaded["state_dict"], dict):
+    if (
+        isinstance(loaded, dict)
+        and "state_dict" in loaded
+        and isinstance(loaded["state_dict"], dict)
+    ):
         loaded = loaded["state_dict"]
     if not isinstance(loaded, dict):
         raise CheckpointMismatchError(f"{p} holds a {type(loaded).__name__}, not a state dict.")
@@ -182,9 +193,7 @@ def check_state_dict(
     state, prefix = _strip_prefix(state, expected)
     got = set(state)
     mismatched = tuple(
-        TensorMismatch(
-            name=k, expected=tuple(model_state[k].shape), actual=tuple(state[k].shape)
-        )
+        TensorMismatch(name=k, expected=tuple(model_state[k].shape), actual=tuple(state[k].shape))
         for k in sorted(expected & got)
         if tuple(model_state[k].shape) != tuple(state[k].shape)
     )
@@ -265,10 +274,14 @@ def _load_vae(folder: Path, how: str) -> AutoencoderKL:
 
 
 def _load_image_encoder(folder: Path, how: str) -> CLIPVisionModelWithProjection:
-    _read_json(folder / "config.json", "the CLIP image encoder config `image_encoder/config.json`", how)
+    _read_json(
+        folder / "config.json", "the CLIP image encoder config `image_encoder/config.json`", how
+    )
     if _find_weights(folder, ("model.safetensors", "pytorch_model.bin")) is None:
         raise CheckpointNotFoundError(
-            "the CLIP image encoder weights (`model.safetensors` or `pytorch_model.bin`)", [folder], how
+            "the CLIP image encoder weights (`model.safetensors` or `pytorch_model.bin`)",
+            [folder],
+            how,
         )
     return CLIPVisionModelWithProjection.from_pretrained(folder, local_files_only=True).eval()
 
@@ -316,7 +329,9 @@ def resolve_authors_checkpoint(checkpoint: PathLike) -> Path:
 
 def _base_unet_config(base: Path) -> dict[str, Any]:
     return _read_json(
-        base / "unet" / "config.json", "the Zero-1-to-3 XL UNet config `unet/config.json`", HOW_TO_GET_BASE
+        base / "unet" / "config.json",
+        "the Zero-1-to-3 XL UNet config `unet/config.json`",
+        HOW_TO_GET_BASE,
     )
 
 
@@ -489,4 +504,3 @@ __all__ = [
     "resolve_authors_checkpoint",
     "save_pretrained",
 ]
-

@@ -122,7 +122,9 @@ class PerceptualMetric:
     network: torch.nn.Module = field(repr=False, compare=False)
 
     @torch.no_grad()
-    def __call__(self, pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+    def __call__(
+        self, pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]
+    ) -> Float[Tensor, " B"]:
         """Per-image distance between images in [0, 1] (lower is better)."""
         _check_pair(pred, gt)
         p = next(self.network.parameters())
@@ -147,7 +149,7 @@ def stlpips_weights_path() -> Path:
     root = _package_dir("stlpips_pytorch")
     if root is None:
         raise MetricUnavailableError(
-            "stlpips-pytorch is not installed: pip install \"gaffer-diffusion[metrics]\""
+            'stlpips-pytorch is not installed: pip install "gaffer-diffusion[metrics]"'
         )
     path = root / "weights" / "vST0.0" / "alex_shift_tolerant.pth"
     if not path.is_file():
@@ -194,7 +196,9 @@ def load_perceptual(lpips_backbone: str | Path | None = None) -> PerceptualMetri
     try:
         net.load_state_dict(torch.load(path, map_location="cpu", weights_only=True), strict=True)
     except (RuntimeError, OSError) as exc:
-        raise MetricUnavailableError(f"could not load shift-tolerant LPIPS from {path}: {exc}") from exc
+        raise MetricUnavailableError(
+            f"could not load shift-tolerant LPIPS from {path}: {exc}"
+        ) from exc
     return PerceptualMetric(name="stlpips-alex", source=str(path), network=net)
 
 
@@ -293,7 +297,7 @@ def evaluate_images(
     *,
     mask: Float[Tensor, "B 1 H W"] | None = None,
     names: list[str] | None = None,
-    perceptual: PerceptualMetric | None | Literal["auto"] = "auto",
+    perceptual: PerceptualMetric | Literal["auto"] | None = "auto",
 ) -> MetricsReport:
     """Score predictions against ground truth: raw and channel-aligned, per item and mean.
 
@@ -320,7 +324,11 @@ def evaluate_images(
     pred, gt = pred.float().cpu(), gt.float().cpu()
     raw = _scores(pred, gt, perceptual)
     al_img = _scores(channel_align(pred, gt), gt, perceptual)
-    al_mask = _scores(channel_align(pred, gt, mask.float().cpu()), gt, perceptual) if mask is not None else None
+    al_mask = (
+        _scores(channel_align(pred, gt, mask.float().cpu()), gt, perceptual)
+        if mask is not None
+        else None
+    )
     labels = names or [str(i) for i in range(pred.shape[0])]
     if len(labels) != pred.shape[0]:
         raise ShapeError("names", len(labels), f"{pred.shape[0]} labels (one per item)")

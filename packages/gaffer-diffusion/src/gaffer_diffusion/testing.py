@@ -30,7 +30,9 @@ def random_conditions(
     shape = (batch_size, 3, resolution, resolution)
     return RelightingConditions(
         image=torch.rand(shape, generator=g),
-        lighting=LightingMaps(ldr=torch.rand(shape, generator=g), hdr=torch.rand(shape, generator=g)),
+        lighting=LightingMaps(
+            ldr=torch.rand(shape, generator=g), hdr=torch.rand(shape, generator=g)
+        ),
     )
 
 
@@ -53,7 +55,9 @@ def write_fake_zero123(
     (directory / "scheduler").mkdir(exist_ok=True)
     sched = {"_class_name": "DDIMScheduler", **dataclasses.asdict(model.config.scheduler)}
     (directory / "scheduler" / "scheduler_config.json").write_text(json.dumps(sched))
-    (directory / "model_index.json").write_text(json.dumps({"_class_name": "Zero1to3StableDiffusionPipeline"}))
+    (directory / "model_index.json").write_text(
+        json.dumps({"_class_name": "Zero1to3StableDiffusionPipeline"})
+    )
     return directory
 
 

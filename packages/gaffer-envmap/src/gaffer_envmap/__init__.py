@@ -25,6 +25,7 @@ from gaffer_envmap.conventions import (
     to_center_alignment,
     uv_to_direction,
 )
+from gaffer_envmap.cube import cube_to_latlong, latlong_to_cube
 from gaffer_envmap.encode import LightingEncoding, encode_lighting, hdr_encode, ldr_encode
 from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
 from gaffer_envmap.errors import (
@@ -38,7 +39,7 @@ from gaffer_envmap.errors import (
     PoseError,
     ShapeError,
 )
-from gaffer_envmap.io import read_envmap, write_envmap, write_png
+from gaffer_envmap.io import read_envmap, read_image_array, write_envmap, write_png
 from gaffer_envmap.poses import (
     IDENTITY_LAYOUT_W2C,
     C2WOpenCV,
@@ -48,6 +49,7 @@ from gaffer_envmap.poses import (
 )
 from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
 from gaffer_envmap.rotate import rotate_to_camera
+from gaffer_envmap.sanitize import SanitizeReport, sanitize
 from gaffer_envmap.sh import irradiance, project_sh, reconstruct_sh, sh_basis
 from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
 
@@ -68,6 +70,7 @@ __all__ = [
     "NonFiniteError",
     "PixelAlignment",
     "PoseError",
+    "SanitizeReport",
     "ShapeError",
     "W2CBlender",
     "__version__",
@@ -77,6 +80,7 @@ __all__ = [
     "bundled_hdris",
     "chirality",
     "convert_convention",
+    "cube_to_latlong",
     "describe",
     "direction_grid",
     "direction_to_uv",
@@ -86,6 +90,7 @@ __all__ = [
     "get_convention",
     "hdr_encode",
     "irradiance",
+    "latlong_to_cube",
     "ldr_encode",
     "look_at_w2c_blender",
     "mean_light_direction",
@@ -93,11 +98,13 @@ __all__ = [
     "project_sh",
     "read_bundled_hdri",
     "read_envmap",
+    "read_image_array",
     "reconstruct_sh",
     "resize_conservative",
     "resize_conservative_torch",
     "rotate_to_camera",
     "row_solid_angle",
+    "sanitize",
     "sh_basis",
     "solid_angle",
     "to_center_alignment",

@@ -12,7 +12,8 @@ library cannot be caught, so `validate_exr` re-checks what the library would tru
 - the offset table: every chunk must lie inside the file and start with the chunk header the table
   position implies (part number, scan line or tile coordinates and level), with a sane byte count.
 
-Deep (non-image) data and subsampled channels are refused as unsupported. The layout follows the
+Deep (non-image) data, subsampled channels and the newer ZSTD / LJ2K codecs (whose chunk layout
+differs between OpenEXR releases) are refused as unsupported. The layout follows the
 "OpenEXR File Layout" document and OpenEXRCore (`validation.c`, `parse_header.c`).
 """
 

@@ -114,8 +114,8 @@ class C2WOpenCV:
     def to_w2c_blender(self) -> W2CBlender:
         """The same camera as a Blender world-to-camera 3x4."""
         r_cv = self.matrix[:3, :3].T  # world -> OpenCV camera
-        r_bl = _BLENDER_TO_OPENCV @ r_cv
-        t = -(r_bl @ self.matrix[:3, 3])
+        r_bl: np.ndarray = _BLENDER_TO_OPENCV @ r_cv
+        t = np.negative(r_bl @ np.asarray(self.matrix[:3, 3], dtype=np.float64))
         return W2CBlender(np.concatenate([r_bl, t[:, None]], axis=1))
 
 

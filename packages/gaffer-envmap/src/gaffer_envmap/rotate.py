@@ -156,8 +156,10 @@ def padded_grid(
     # d_world = R^T d_cam; as row vectors d_cam @ R. Spin: lookup = Rz(-spin) d_world.
     m = rotations.to(torch.float64) @ _spin_matrix(spin_deg, p, device).transpose(1, 2)
     hs, ws = dirs_cam.shape[:2]
-    dirs_world = (dirs_cam.reshape(1, hs * ws, 3) @ m.float()).reshape(p, hs, ws, 3)
-    x, y, z = dirs_world.unbind(-1)
+    planes = dirs_cam.reshape(hs * ws, 3).T.contiguous()  # [3, N]: contiguous x, y, z planes
+    mf = m.float()
+    # World components as contiguous [P, N] planes (faster trig than strided views of a [P, N, 3]).
+    x, y, z = ((mf[:, :, k] @ planes).reshape(p, hs, ws) for k in range(3))
     src_width = 2 * src_height
     # u = 1/2 - atan2(y, x) / 2pi, v = acos(z) / pi, folded into grid_sample's [-1, 1] range.
     gx = (
@@ -311,9 +313,10 @@ def rotate_channels_first(
     if ss > 1:
         _, w = _camera_grid(out_h, out_w, ss, str(src.device))
         lead = out.shape[:-2]
-        out = out.reshape(*lead, out_h, ss, out_w, ss)
-        # Solid-angle-weighted mean over the ss x ss sub-samples of each pixel.
-        out = (out * (w.reshape(out_h, ss, 1, 1) / ss)).sum(dim=(-3, -1))
+        # Solid-angle-weighted mean over the ss x ss sub-samples of each pixel: the row weights sum to
+        # one within a pixel, so ss * avg_pool(samples * w_row) is that mean.
+        flat = (out * w[:, None]).reshape(-1, 1, out_h * ss, out_w * ss)
+        out = (F.avg_pool2d(flat, ss) * ss).reshape(*lead, out_h, out_w)
     out = _exact_permutations(out, src_cf, rot, spin_deg, pairing)
     if filter == "area" and renormalize:
         out = _renormalize(out, src_cf, pairing)

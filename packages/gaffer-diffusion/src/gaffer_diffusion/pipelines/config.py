@@ -46,7 +46,10 @@ class SamplingConfig:
     nonfinite: NonFinitePolicy = "raise"
 
     def __post_init__(self) -> None:
-        if not isinstance(self.num_inference_steps, int) or not 1 <= self.num_inference_steps <= 1000:
+        if (
+            not isinstance(self.num_inference_steps, int)
+            or not 1 <= self.num_inference_steps <= 1000
+        ):
             raise ConfigError(
                 f"`num_inference_steps` is {self.num_inference_steps!r}; expected an int in [1, 1000]."
             )
@@ -57,11 +60,17 @@ class SamplingConfig:
         if not 0.0 <= self.eta <= 1.0:
             raise ConfigError(f"`eta` is {self.eta!r}; expected a value in [0, 1].")
         if self.scheduler not in SCHEDULERS:
-            raise ConfigError(f"`scheduler` is {self.scheduler!r}; expected one of {list(SCHEDULERS)}.")
+            raise ConfigError(
+                f"`scheduler` is {self.scheduler!r}; expected one of {list(SCHEDULERS)}."
+            )
         if self.latent_mode not in ("mode", "sample"):
-            raise ConfigError(f"`latent_mode` is {self.latent_mode!r}; expected 'mode' or 'sample'.")
+            raise ConfigError(
+                f"`latent_mode` is {self.latent_mode!r}; expected 'mode' or 'sample'."
+            )
         if self.nonfinite not in ("raise", "retry_fp32"):
-            raise ConfigError(f"`nonfinite` is {self.nonfinite!r}; expected 'raise' or 'retry_fp32'.")
+            raise ConfigError(
+                f"`nonfinite` is {self.nonfinite!r}; expected 'raise' or 'retry_fp32'."
+            )
 
     @property
     def do_classifier_free_guidance(self) -> bool:

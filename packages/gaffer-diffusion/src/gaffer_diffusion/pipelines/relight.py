@@ -88,7 +88,9 @@ class RelightPipeline:
         self._unet: Callable[..., object] = self.model.unet
         if self.runtime.compile:
             self._unet = torch.compile(
-                self.model.unet, mode=self.runtime.compile_mode, backend=self.runtime.compile_backend
+                self.model.unet,
+                mode=self.runtime.compile_mode,
+                backend=self.runtime.compile_backend,
             )
         self._fp32: NeuralGafferModel | None = None
 
@@ -119,7 +121,9 @@ class RelightPipeline:
         Returns:
             `EncodedConditions` on the pipeline's device and dtype.
         """
-        return encode_conditions(self.model, conditions, latent_mode=latent_mode, generator=generator)
+        return encode_conditions(
+            self.model, conditions, latent_mode=latent_mode, generator=generator
+        )
 
     def initial_noise(
         self, batch_size: int, *, generator: GeneratorArg = None, seeds: Sequence[int] | None = None
@@ -138,9 +142,13 @@ class RelightPipeline:
         h = self.model.config.latent_size
         shape = (batch_size, self.model.config.vae.latent_channels, h, h)
         if isinstance(gens, list):
-            noise = torch.cat([torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens])
+            noise = torch.cat(
+                [torch.randn((1, *shape[1:]), generator=g, device=g.device) for g in gens]
+            )
         else:
-            noise = randn_tensor(shape, generator=gens, device=torch.device("cpu"), dtype=torch.float32)
+            noise = randn_tensor(
+                shape, generator=gens, device=torch.device("cpu"), dtype=torch.float32
+            )
         return noise.to(device=self.device, dtype=self.dtype)
 
     @staticmethod
@@ -151,13 +159,17 @@ class RelightPipeline:
             if generator is not None:
                 raise ConfigError("Pass either `generator` or `seeds`, not both.")
             if len(seeds) != n:
-                raise ConfigError(f"`seeds` has {len(seeds)} entries; expected one per image ({n}).")
+                raise ConfigError(
+                    f"`seeds` has {len(seeds)} entries; expected one per image ({n})."
+                )
             return [torch.Generator("cpu").manual_seed(int(s)) for s in seeds]
         if generator is None or isinstance(generator, torch.Generator):
             return generator
         gens = list(generator)
         if len(gens) != n:
-            raise ConfigError(f"`generator` is a list of {len(gens)}; expected one per image ({n}).")
+            raise ConfigError(
+                f"`generator` is a list of {len(gens)}; expected one per image ({n})."
+            )
         return gens
 
     @torch.no_grad()

@@ -20,7 +20,10 @@ SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmsolver++", "unipc")
 
 
 def make_scheduler(
-    name: SchedulerName, config: SchedulerConfig | None = None, *, timestep_spacing: str | None = None
+    name: SchedulerName,
+    config: SchedulerConfig | None = None,
+    *,
+    timestep_spacing: str | None = None,
 ) -> SchedulerMixin:
     """A fresh diffusers scheduler of the given kind for the model's noise schedule.
 
