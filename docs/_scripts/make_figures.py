@@ -161,7 +161,8 @@ def conventions_figure(env: ge.EnvironmentMap, path: Path) -> dict[str, object]:
         _label_latlong(ax, conv, w, h)
         ax.plot(float(u) * w - 0.5, float(v) * h - 0.5, marker="o", ms=16, mfc="none", mec="yellow", mew=2)
         ax.annotate("sun (brightest pixel,\nplaced by direction_to_uv)", (float(u) * w, float(v) * h),
-                    xytext=(12, -28), textcoords="offset points", color="yellow", fontsize=8)
+                    xytext=(12 if u < 0.75 else -130, -30), textcoords="offset points", color="yellow",
+                    fontsize=8)
         ax.set_title(title, fontsize=9)
     fig.suptitle("Lat-long layouts: world map and camera-frame map (bundled HDRI \"sunset\")", fontsize=11)
     fig.tight_layout()
@@ -178,7 +179,7 @@ def _arrow3d(ax, origin, vec, color, label, scale=0.6, **kw) -> None:  # noqa: A
 
 def camera_pose_figure(path: Path) -> None:
     """A camera drawn with Blender w2c axes (left) and OpenCV c2w axes (right)."""
-    w2c = ge.orbit_w2c_blender(FIG_AZIMUTH + 20, FIG_ELEVATION + 10, 2.0)
+    w2c = ge.orbit_w2c_blender(60.0, 25.0, 2.0)
     c2w = w2c.to_c2w_opencv()
     eye = w2c.camera_position_world
     r_bl = w2c.rotation  # rows: Blender camera x, y, z axes in world coordinates
@@ -207,7 +208,8 @@ def camera_pose_figure(path: Path) -> None:
         ax.set_xlabel("X")
         ax.set_ylabel("Y")
         ax.set_zlabel("Z (up)")
-        ax.view_init(elev=18, azim=-60)
+        ax.view_init(elev=28, azim=-75)  # camera right and forward both at ~45 degrees to the view
+        ax.set_box_aspect((2.7, 2.7, 2.0))
         ax.set_title(title, fontsize=9)
     fig.suptitle(
         "One camera, two conventions: R_opencv = diag(1, −1, −1) R_blender (exact; "
@@ -274,7 +276,7 @@ def normaliser_figure(env: ge.EnvironmentMap, path: Path) -> None:
     ax.plot(azimuths, default_norm, "-", label="default: log1p(10 peak) of the SOURCE map")
     ax.set_xlabel("camera azimuth (degrees)")
     ax.set_ylabel("HDR normaliser")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
     ax.grid(alpha=0.3)
     ax.set_title("E_H = log1p(10 E) / normaliser, for one map as the camera turns (\"sunset\", 512x256)", fontsize=9)
     fig.tight_layout()

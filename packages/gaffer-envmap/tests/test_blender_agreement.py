@@ -23,7 +23,7 @@ ray leaves through the pixel centre), world = Environment Texture (strength 1), 
 2. Camera poses. A camera placed at the documented orbit position (azimuth counter-clockwise from +x,
    elevation above the horizon) and aimed with a TRACK_TO constraint (track -Z, up Y: the Objaverse/Zero123
    render scripts the paper's data comes from) must have the world-to-camera matrix `orbit_w2c_blender`
-   returns. Known difference, kept as a strict xfail: exactly at elevation +-90 (see that test).
+   returns, also exactly at elevation +-90, where TRACK_TO keeps following the azimuth.
 3. Camera-frame rotation. A panoramic camera at the origin with the rotation of a perspective pose renders
    the world in that camera's frame. Its layout, derived from Cycles (below), is "view direction at the
    centre"; ours ("neural-gaffer-camera") puts camera right at the centre: a pure quarter-turn column roll.
@@ -175,7 +175,7 @@ def _blender_pano_camera_dirs(height: int, width: int) -> np.ndarray:
 
 def _to_ours(blender_pano: np.ndarray) -> np.ndarray:
     """Blender's panorama-in-camera-frame layout -> "neural-gaffer-camera": ours[:, j] = blender[:, j + W/4]."""
-    return np.roll(blender_pano, -blender_pano.shape[1] // 4, axis=1)
+    return np.roll(blender_pano, -(blender_pano.shape[1] // 4), axis=1)
 
 
 def _source_pixel(dirs_world: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -368,15 +368,6 @@ def test_track_to_camera_matches_orbit_w2c_blender(tmp_path: Path) -> None:
 
 
 @needs_blender
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "Known disagreement at exactly +-90 deg elevation: orbit_w2c_blender's eye has ~1e-16 horizontal "
-        "components (cos(pi/2) != 0); Blender's TRACK_TO still follows the azimuth there (camera right = "
-        "(-sin az, cos az, 0), the limit of el -> 90), while look_at_w2c_blender switches to its fallback "
-        "(right = +-world x) whenever |forward x up| < 1e-9."
-    ),
-)
 def test_track_to_at_the_pole_follows_azimuth(tmp_path: Path) -> None:
     cases = [(45.0, 90.0, 2.0), (200.0, 90.0, 2.0), (45.0, -90.0, 2.0)]
     poses = [orbit_w2c_blender(az, el, dist) for az, el, dist in cases]

@@ -1,57 +1,138 @@
 """gaffer-envmap: equirectangular HDR lighting math for relighting (the leaf of gaffer; imports no sibling).
 
-Public API re-exported here; submodules hold one topic each (see the package README).
+Public API re-exported here, loaded lazily (PEP 562): `import gaffer_envmap.augment` or
+`gaffer_envmap.atomic` pulls in numpy only, so torch-free processes (Blender workers) can use them.
 """
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from gaffer_envmap._version import __version__
-from gaffer_envmap.augment import (
-    AugmentSpec,
-    augment_pool,
-    augment_specs,
-    flip_horizontal,
-    yaw_roll,
-)
-from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
-from gaffer_envmap.conventions import (
-    CONVENTIONS,
-    LatLongConvention,
-    chirality,
-    convert_convention,
-    direction_grid,
-    direction_to_uv,
-    get_convention,
-    row_solid_angle,
-    solid_angle,
-    to_center_alignment,
-    uv_to_direction,
-)
-from gaffer_envmap.cube import cube_to_latlong, latlong_to_cube
-from gaffer_envmap.encode import LightingEncoding, encode_lighting, hdr_encode, ldr_encode
-from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
-from gaffer_envmap.errors import (
-    ConventionError,
-    EnvmapReadError,
-    EnvmapWriteError,
-    GafferEnvmapError,
-    HalfOverflowError,
-    MissingDependencyError,
-    NonFiniteError,
-    PoseError,
-    ShapeError,
-)
-from gaffer_envmap.io import read_envmap, read_image_array, write_envmap, write_png
-from gaffer_envmap.poses import (
-    IDENTITY_LAYOUT_W2C,
-    C2WOpenCV,
-    W2CBlender,
-    look_at_w2c_blender,
-    orbit_w2c_blender,
-)
-from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
-from gaffer_envmap.rotate import rotate_to_camera
-from gaffer_envmap.sanitize import SanitizeReport, sanitize
-from gaffer_envmap.sh import irradiance, project_sh, reconstruct_sh, sh_basis
-from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
+
+_EXPORTS: dict[str, str] = {
+    "AugmentSpec": "augment",
+    "C2WOpenCV": "poses",
+    "CONVENTIONS": "conventions",
+    "ConventionError": "errors",
+    "EnvironmentMap": "environment_map",
+    "EnvmapReadError": "errors",
+    "EnvmapWriteError": "errors",
+    "GafferEnvmapError": "errors",
+    "HalfOverflowError": "errors",
+    "IDENTITY_LAYOUT_W2C": "poses",
+    "LatLongConvention": "conventions",
+    "LightingEncoding": "encode",
+    "MissingDependencyError": "errors",
+    "NonFiniteError": "errors",
+    "PixelAlignment": "environment_map",
+    "PoseError": "errors",
+    "SanitizeReport": "sanitize",
+    "ShapeError": "errors",
+    "W2CBlender": "poses",
+    "augment_pool": "augment",
+    "augment_specs": "augment",
+    "bundled_hdri": "bundled",
+    "bundled_hdris": "bundled",
+    "chirality": "conventions",
+    "convert_convention": "conventions",
+    "cube_to_latlong": "cube",
+    "describe": "stats",
+    "direction_grid": "conventions",
+    "direction_to_uv": "conventions",
+    "encode_lighting": "encode",
+    "first_moment": "stats",
+    "flip_horizontal": "augment",
+    "get_convention": "conventions",
+    "hdr_encode": "encode",
+    "irradiance": "sh",
+    "latlong_to_cube": "cube",
+    "ldr_encode": "encode",
+    "look_at_w2c_blender": "poses",
+    "mean_light_direction": "stats",
+    "orbit_w2c_blender": "poses",
+    "project_sh": "sh",
+    "read_bundled_hdri": "bundled",
+    "read_envmap": "io",
+    "read_image_array": "io",
+    "reconstruct_sh": "sh",
+    "resize_conservative": "resample",
+    "resize_conservative_torch": "resample",
+    "rotate_to_camera": "rotate",
+    "row_solid_angle": "conventions",
+    "sanitize": "sanitize",
+    "sh_basis": "sh",
+    "solid_angle": "conventions",
+    "to_center_alignment": "conventions",
+    "total_power": "stats",
+    "uv_to_direction": "conventions",
+    "write_envmap": "io",
+    "write_png": "io",
+    "yaw_roll": "augment",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gaffer_envmap' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"gaffer_envmap.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
+if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
+    from gaffer_envmap.augment import (
+        AugmentSpec,
+        augment_pool,
+        augment_specs,
+        flip_horizontal,
+        yaw_roll,
+    )
+    from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
+    from gaffer_envmap.conventions import (
+        CONVENTIONS,
+        LatLongConvention,
+        chirality,
+        convert_convention,
+        direction_grid,
+        direction_to_uv,
+        get_convention,
+        row_solid_angle,
+        solid_angle,
+        to_center_alignment,
+        uv_to_direction,
+    )
+    from gaffer_envmap.cube import cube_to_latlong, latlong_to_cube
+    from gaffer_envmap.encode import LightingEncoding, encode_lighting, hdr_encode, ldr_encode
+    from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
+    from gaffer_envmap.errors import (
+        ConventionError,
+        EnvmapReadError,
+        EnvmapWriteError,
+        GafferEnvmapError,
+        HalfOverflowError,
+        MissingDependencyError,
+        NonFiniteError,
+        PoseError,
+        ShapeError,
+    )
+    from gaffer_envmap.io import read_envmap, read_image_array, write_envmap, write_png
+    from gaffer_envmap.poses import (
+        IDENTITY_LAYOUT_W2C,
+        C2WOpenCV,
+        W2CBlender,
+        look_at_w2c_blender,
+        orbit_w2c_blender,
+    )
+    from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
+    from gaffer_envmap.rotate import rotate_to_camera
+    from gaffer_envmap.sanitize import SanitizeReport, sanitize
+    from gaffer_envmap.sh import irradiance, project_sh, reconstruct_sh, sh_basis
+    from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
 
 __all__ = [
     "CONVENTIONS",

@@ -157,7 +157,13 @@ def orbit_w2c_blender(
         raise PoseError(f"`distance` must be > 0, got {distance}.")
     az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
     eye = distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    return look_at_w2c_blender(eye)
+    # Camera right is horizontal and follows the azimuth, also at el = +-90 degrees, where a generic
+    # look-at has no preferred roll; this is the limit Blender's TRACK_TO constraint takes there.
+    right = np.array([-np.sin(az), np.cos(az), 0.0])
+    forward = -eye / distance
+    cam_up = np.cross(right, forward)
+    rotation = np.stack([right, cam_up / np.linalg.norm(cam_up), -forward])
+    return W2CBlender(np.concatenate([rotation, (-rotation @ eye)[:, None]], axis=1))
 
 
 IDENTITY_LAYOUT_W2C = W2CBlender(np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0]]))
