@@ -56,6 +56,8 @@ autodoc_preserve_defaults = True
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
 napoleon_use_rtype = False
+# Dataclass fields listed under "Attributes:" would otherwise be described twice (napoleon + autodoc).
+napoleon_use_ivar = True
 
 # --- Cross-references ------------------------------------------------------------------------------
 # intersphinx (torch, numpy, Python) needs the network to fetch the inventories; our CI machines and
@@ -92,4 +94,7 @@ def _generate(app) -> None:  # noqa: ANN001 - Sphinx application
 
 def setup(app) -> dict[str, object]:  # noqa: ANN001
     app.connect("builder-inited", _generate)
+    # Before napoleon (priority 500): read the Markdown-flavoured docstrings as reST (see the module).
+    docstring_compat = importlib.import_module("docstring_compat")
+    app.connect("autodoc-process-docstring", docstring_compat.process_docstring, priority=400)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -151,6 +151,8 @@ def encode_lighting(
         return LightingEncoding(ldr=to_t(ldr_u8), hdr=to_t(hdr_u8), compat=compat)
     if compat != "default":
         raise GafferEnvmapError(f"`compat` must be 'default' or 'neural-gaffer', got {compat!r}.")
+    if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
+        src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
     ss = supersample if filter == "area" else 1
     if filter == "area":
         src = resize_conservative_torch(src, prefilter_height(src.shape[1], size, size, ss))
@@ -158,7 +160,7 @@ def encode_lighting(
         src, rot, size, size, filter=filter, supersample=supersample, spin_deg=spin_deg, pairing="zip"
     )  # [B, 3, S, S]
     # Rotation-invariant normaliser: the source's peak at the resolution the rotation reads.
-    peak = torch.nan_to_num(src, nan=0.0, posinf=0.0).amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
+    peak = src.amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
     ldr = ldr_encode(rotated)
     hdr = hdr_encode(rotated, peak)
     if quantize:

@@ -1,0 +1,146 @@
+"""Read gaffer's Markdown-flavoured docstrings as reStructuredText (an `autodoc-process-docstring` hook).
+
+gaffer's docstrings follow the Google style that napoleon parses, but their inline markup is Markdown's,
+as in the rest of the repository: `x` for code, `- ` lists straight after a sentence, pipe tables, |x|
+for an absolute value, code glued to text (`W2CBlender`s, `s`^2). In reST those mean something else or
+are errors. This hook runs before napoleon and rewrites exactly these constructs, leaving everything
+else alone:
+
+- a single-backtick span becomes an inline literal (double backticks), with an escaped space where reST
+  needs a boundary that Markdown does not (`x`s -> ``x``\\ s); roles (:py:func:`x`) and hyperlink
+  references (`x`_) are untouched;
+- a bullet list that follows a paragraph line gets the blank line reST requires before it;
+- a pipe table (header row, |---| separator row, body rows) becomes a `list-table` directive;
+- a `|` outside code becomes `\\|` (reST reads |x| as a substitution reference);
+- a data/attribute docstring whose first line is prose containing a colon gets a blank first line, so that
+  napoleon does not read "text before the colon" as the attribute's type.
+
+Lines of doctests (from `>>>` to the next blank line) and of literal blocks (after a line ending in `::`)
+are never changed. The functions are pure, so the rules are easy to test:
+`python docs/_scripts/docstring_compat.py` runs the self-checks at the bottom.
+"""
+
+import re
+
+_CODE = re.compile(r"(?<![`:\w\\])`(?!`)([^`\n]+?)`(?![`_])")
+# reST: an inline markup start-string must follow whitespace or one of these, an end-string must be
+# followed by whitespace or one of these (docutils "inline markup recognition rules", simplified).
+_BEFORE_OK = set(" \t'\"([{<-/:") | {""}
+_AFTER_OK = set(" \t'\")]}>-/:.,;!?\\") | {""}
+_BULLET = re.compile(r"^(\s*)[-*+] \S")
+_TABLE_ROW = re.compile(r"^\s*\|.*\|\s*$")
+_TABLE_SEP = re.compile(r"^\s*\|(\s*:?-{3,}:?\s*\|)+\s*$")
+
+
+def _inline(text: str) -> str:
+    """Backtick spans -> inline literals with reST-safe boundaries; `|` outside code escaped."""
+    out, pos = [], 0
+    for m in _CODE.finditer(text):
+        before = text[m.start() - 1] if m.start() > 0 else ""
+        after = text[m.end()] if m.end() < len(text) else ""
+        chunk = text[pos : m.start()].replace("|", "\\|")
+        out.append(chunk)
+        out.append(("" if before in _BEFORE_OK else "\\ ") + f"``{m.group(1)}``" + ("" if after in _AFTER_OK else "\\ "))
+        pos = m.end()
+    out.append(text[pos:].replace("|", "\\|"))
+    return "".join(out)
+
+
+def _table(rows: list[str], indent: str) -> list[str]:
+    """Pipe-table lines (separator removed) -> a list-table directive."""
+    cells = [[c.strip() for c in r.strip().strip("|").split("|")] for r in rows]
+    out = [f"{indent}.. list-table::", f"{indent}   :header-rows: 1", ""]
+    for row in cells:
+        for k, cell in enumerate(row):
+            out.append(f"{indent}   {'* -' if k == 0 else '  -'} {_inline(cell) or '..'}")
+    out.append("")
+    return out
+
+
+def convert(lines: list[str], what: str = "") -> list[str]:
+    """The rewritten docstring lines (see the module docstring for the rules)."""
+    out: list[str] = []
+    i, n = 0, len(lines)
+    in_doctest, literal_indent = False, None
+    while i < n:
+        line = lines[i]
+        stripped = line.strip()
+        indent = line[: len(line) - len(line.lstrip())]
+        if literal_indent is not None:
+            if stripped and len(indent) <= literal_indent:
+                literal_indent = None
+            else:
+                out.append(line)
+                i += 1
+                continue
+        if stripped.startswith(">>>"):
+            in_doctest = True
+        if in_doctest:
+            out.append(line)
+            in_doctest = bool(stripped)
+            i += 1
+            continue
+        if (
+            _TABLE_ROW.match(line)
+            and i + 1 < n
+            and _TABLE_SEP.match(lines[i + 1])
+        ):
+            rows = [line]
+            j = i + 2
+            while j < n and _TABLE_ROW.match(lines[j]):
+                rows.append(lines[j])
+                j += 1
+            if out and out[-1].strip():
+                out.append("")
+            out += _table(rows, indent)
+            i = j
+            continue
+        if _BULLET.match(line) and out and out[-1].strip():
+            prev = out[-1]
+            prev_indent = len(prev) - len(prev.lstrip())
+            # A bullet right after a paragraph line (not after another item or its continuation).
+            if not _BULLET.match(prev) and prev_indent <= len(indent) and not _in_list(out, len(indent)):
+                out.append("")
+        out.append(_inline(line))
+        if stripped.endswith("::"):
+            literal_indent = len(indent)
+        i += 1
+    if what in ("data", "attribute") and out:
+        head = out[0]
+        colon = head.find(": ")
+        if colon > 0 and " " in head[:colon].strip() and "`" not in head[:colon]:
+            out.insert(0, "")
+    return out
+
+
+def _in_list(out: list[str], indent: int) -> bool:
+    """True when the lines above (back to a blank line) belong to a bullet list at this indentation."""
+    for prev in reversed(out):
+        if not prev.strip():
+            return False
+        m = _BULLET.match(prev)
+        if m and len(m.group(1)) == indent:
+            return True
+    return False
+
+
+def process_docstring(app, what, name, obj, options, lines) -> None:  # noqa: ANN001, ARG001 - Sphinx hook signature
+    """`autodoc-process-docstring` handler: rewrite `lines` in place."""
+    lines[:] = convert(list(lines), what)
+
+
+if __name__ == "__main__":
+    assert _inline("a `x` b") == "a ``x`` b"
+    assert _inline("`W2CBlender`s") == "``W2CBlender``\\ s"
+    assert _inline("`supersample`^2") == "``supersample``\\ ^2"
+    assert _inline(":py:func:`f` and `g`_") == ":py:func:`f` and `g`_"
+    assert _inline("|v| > 1 and `a|b`") == "\\|v\\| > 1 and ``a|b``"
+    assert convert(["Intro:", "- one", "- two"]) == ["Intro:", "", "- one", "- two"]
+    assert convert(["- one", "  more", "- two"]) == ["- one", "  more", "- two"]
+    assert convert(["Example:", "    >>> f(`x`)", "    `y`", "", "`z`"]) == [
+        "Example:", "    >>> f(`x`)", "    `y`", "", "``z``",
+    ]
+    assert convert(["| a | b |", "|---|---|", "| `c` | d |"])[0] == ".. list-table::"
+    assert convert(["The pose: camera right"], "data")[0] == ""
+    assert convert(["int: the count"], "data")[0] == "int: the count"
+    print("docstring_compat: self-checks passed")
