@@ -41,10 +41,13 @@ def tests(session: nox.Session) -> None:
 
 @nox.session
 def lint(session: nox.Session) -> None:
-    """ruff check + format check over the whole tree."""
-    session.install("ruff==0.17.6")
+    """ruff check + format check over the whole tree; import-linter enforces the one-way imports."""
+    session.install("ruff==0.17.6", "import-linter>=2.1")
     session.run("ruff", "check", ".")
     session.run("ruff", "format", "--check", ".")
+    # Sources only (no dependencies): import-linter reads the code, it does not run it.
+    session.install("--no-deps", *(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}")))
+    session.run("lint-imports")
 
 
 @nox.session
@@ -104,7 +107,7 @@ def demo(session: nox.Session) -> None:
 def bench(session: nox.Session) -> None:
     """Benchmarks: JSON + PNG plots under benchmarks/results/."""
     _install(session, "torch==2.13.0", "numpy==1.26.4")
-    _install(session, "-e", "packages/gaffer-envmap[hdr]", "matplotlib==3.11.2", "pillow>=10")
+    _install(session, *TEST_SPECS, "matplotlib==3.11.2")
     env = {"PYTHONHASHSEED": "0"}
     for script in sorted((ROOT / "benchmarks").glob("bench_*.py")):
         session.run("python", str(script), *session.posargs, env=env)

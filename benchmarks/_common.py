@@ -132,9 +132,10 @@ def machine(threads: int) -> dict[str, Any]:
 def short_device(meta: dict[str, Any]) -> str:
     """One line for plot titles."""
     gpu = f", GPU {meta['gpu']}" if meta.get("cuda") == "available" else ", no GPU"
+    load = meta.get("load_average_start", [float("nan")])[0]
     return (
-        f"{meta['cpu_model']}, {meta['cpu_count']} cores{gpu}; torch {meta['torch']}; "
-        f"{meta['date_utc'][:10]}"
+        f"{meta['cpu_model']}, {meta['cpu_count']} cores{gpu}; torch {meta['torch']}, "
+        f"{meta['torch_threads']} threads; {meta['date_utc'][:10]}; load avg at start {load:.1f}"
     )
 
 
@@ -161,7 +162,9 @@ class Spread:
         return {k: (round(x, 6) if isinstance(x, float) else x) for k, x in asdict(self).items()}
 
 
-def time_calls(fn: Callable[[], object], calls: int, sync: Callable[[], None] | None = None) -> float:
+def time_calls(
+    fn: Callable[[], object], calls: int, sync: Callable[[], None] | None = None
+) -> float:
     """Seconds for `calls` back-to-back calls of `fn` (after `sync`, for asynchronous devices)."""
     if sync is not None:
         sync()
@@ -173,16 +176,23 @@ def time_calls(fn: Callable[[], object], calls: int, sync: Callable[[], None] | 
     return time.perf_counter() - t0
 
 
-def calibrate(fn: Callable[[], object], min_seconds: float, sync: Callable[[], None] | None = None) -> int:
+def calibrate(
+    fn: Callable[[], object], min_seconds: float, sync: Callable[[], None] | None = None
+) -> int:
     """Calls per repetition so that one repetition lasts at least `min_seconds` (one warm-up call first)."""
     one = time_calls(fn, 1, sync)
     return max(1, math.ceil(min_seconds / max(one, 1e-9)))
 
 
-def write_results(name: str, payload: dict[str, Any], figure: Any, update_baseline: bool) -> list[Path]:
+def write_results(
+    name: str, payload: dict[str, Any], figure: Any, update_baseline: bool
+) -> list[Path]:
     """Write the run's JSON and PNG (and the baseline's when asked); return the paths written."""
     payload = {**payload}
-    payload["machine"] = {**payload["machine"], "load_average_end": [round(x, 2) for x in os.getloadavg()]}
+    payload["machine"] = {
+        **payload["machine"],
+        "load_average_end": [round(x, 2) for x in os.getloadavg()],
+    }
     stamp = payload["machine"]["date_utc"].replace(":", "").replace("-", "")
     RUNS.mkdir(parents=True, exist_ok=True)
     targets = [RUNS / f"{name}-{stamp}"]

@@ -19,7 +19,7 @@ import gaffer_envmap  # noqa: E402
 
 project = "gaffer"
 author = "the gaffer authors"
-copyright = "2026, the gaffer authors"  # noqa: A001
+copyright = "2026, the gaffer authors"
 release = gaffer_envmap.__version__
 version = release
 
@@ -27,7 +27,6 @@ extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
-    "sphinx.ext.doctest",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
 ]
@@ -73,26 +72,29 @@ if os.environ.get("GAFFER_DOCS_INTERSPHINX") == "1":
     }
 
 nitpick_ignore_regex = [
-    # Third-party and standard-library types, resolved only with intersphinx.
-    (r"py:.*", r"(torch|numpy|np|PIL|collections|typing|pathlib|os|argparse|logging|enum|dataclasses)(\..*)?"),
-    (r"py:.*", r"(Tensor|Path|PathLike|Sequence|Mapping|Callable|Iterator|Iterable|Literal|Any|Self|T)"),
-    (r"py:.*", r"(ndarray|dtype|device|Generator|Image|Namespace|ArgumentParser|Logger)"),
-    (r"py:.*", r"(int|float|str|bool|bytes|dict|list|tuple|set|None|object|type|complex|Exception)"),
-    (r"py:.*", r"(ValueError|OSError|ImportError|TypeError|KeyError|RuntimeError|UserWarning|Warning)"),
-    (r"py:.*", r"(mmap|mmap\.mmap|contextlib\..*|types\..*|functools\..*)"),
+    # Types of numpy, torch and the standard library: resolved only through intersphinx.
+    (
+        r"py:(class|obj|data|func|meth|attr|exc)",
+        r"(numpy|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging)\..+",
+    ),
+]
+nitpick_ignore = [
+    (
+        "py:class",
+        "gaffer_envmap.atomic.T",
+    ),  # a TypeVar: autodoc links it, but it has no page of its own
 ]
 
-# Doctest builder (`sphinx-build -b doctest docs docs/_build/doctest`) runs the `>>>` examples of the
-# API docstrings and of the pages.
-doctest_global_setup = "import numpy as np\nimport torch\nimport gaffer_envmap as ge\n"
+# The `>>>` examples of the API docstrings run under pytest (`--doctest-modules`, in the module's own
+# namespace); the tutorial page's code runs at every build (docs/_scripts/make_figures.py).
 
 
-def _generate(app) -> None:  # noqa: ANN001 - Sphinx application
+def _generate(app) -> None:
     make_figures = importlib.import_module("make_figures")
     make_figures.main(out=DOCS / "_generated", quiet=True)
 
 
-def setup(app) -> dict[str, object]:  # noqa: ANN001
+def setup(app) -> dict[str, object]:
     app.connect("builder-inited", _generate)
     # Before napoleon (priority 500): read the Markdown-flavoured docstrings as reST (see the module).
     docstring_compat = importlib.import_module("docstring_compat")

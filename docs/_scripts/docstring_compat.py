@@ -12,8 +12,8 @@ else alone:
 - a bullet list that follows a paragraph line gets the blank line reST requires before it;
 - a pipe table (header row, |---| separator row, body rows) becomes a `list-table` directive;
 - a `|` outside code becomes `\\|` (reST reads |x| as a substitution reference);
-- a data/attribute docstring whose first line is prose containing a colon gets a blank first line, so that
-  napoleon does not read "text before the colon" as the attribute's type.
+- a data/attribute docstring whose first line is prose containing a colon is re-wrapped so that the colon
+  starts line 2 (the same paragraph); napoleon would read "text before the colon" as the attribute's type.
 
 Lines of doctests (from `>>>` to the next blank line) and of literal blocks (after a line ending in `::`)
 are never changed. The functions are pure, so the rules are easy to test:
@@ -40,7 +40,11 @@ def _inline(text: str) -> str:
         after = text[m.end()] if m.end() < len(text) else ""
         chunk = text[pos : m.start()].replace("|", "\\|")
         out.append(chunk)
-        out.append(("" if before in _BEFORE_OK else "\\ ") + f"``{m.group(1)}``" + ("" if after in _AFTER_OK else "\\ "))
+        out.append(
+            ("" if before in _BEFORE_OK else "\\ ")
+            + f"``{m.group(1)}``"
+            + ("" if after in _AFTER_OK else "\\ ")
+        )
         pos = m.end()
     out.append(text[pos:].replace("|", "\\|"))
     return "".join(out)
@@ -80,11 +84,7 @@ def convert(lines: list[str], what: str = "") -> list[str]:
             in_doctest = bool(stripped)
             i += 1
             continue
-        if (
-            _TABLE_ROW.match(line)
-            and i + 1 < n
-            and _TABLE_SEP.match(lines[i + 1])
-        ):
+        if _TABLE_ROW.match(line) and i + 1 < n and _TABLE_SEP.match(lines[i + 1]):
             rows = [line]
             j = i + 2
             while j < n and _TABLE_ROW.match(lines[j]):
@@ -99,7 +99,11 @@ def convert(lines: list[str], what: str = "") -> list[str]:
             prev = out[-1]
             prev_indent = len(prev) - len(prev.lstrip())
             # A bullet right after a paragraph line (not after another item or its continuation).
-            if not _BULLET.match(prev) and prev_indent <= len(indent) and not _in_list(out, len(indent)):
+            if (
+                not _BULLET.match(prev)
+                and prev_indent <= len(indent)
+                and not _in_list(out, len(indent))
+            ):
                 out.append("")
         out.append(_inline(line))
         if stripped.endswith("::"):
@@ -109,7 +113,10 @@ def convert(lines: list[str], what: str = "") -> list[str]:
         head = out[0]
         colon = head.find(": ")
         if colon > 0 and " " in head[:colon].strip() and "`" not in head[:colon]:
-            out.insert(0, "")
+            # napoleon reads only the first line for "type: description"; move the colon to line 2
+            # (same paragraph, same rendered text).
+            k = head.rfind(" ", 0, colon)
+            out[0:1] = [head[:k], head[k + 1 :]]
     return out
 
 
@@ -124,7 +131,7 @@ def _in_list(out: list[str], indent: int) -> bool:
     return False
 
 
-def process_docstring(app, what, name, obj, options, lines) -> None:  # noqa: ANN001, ARG001 - Sphinx hook signature
+def process_docstring(app, what, name, obj, options, lines) -> None:
     """`autodoc-process-docstring` handler: rewrite `lines` in place."""
     lines[:] = convert(list(lines), what)
 
@@ -138,9 +145,13 @@ if __name__ == "__main__":
     assert convert(["Intro:", "- one", "- two"]) == ["Intro:", "", "- one", "- two"]
     assert convert(["- one", "  more", "- two"]) == ["- one", "  more", "- two"]
     assert convert(["Example:", "    >>> f(`x`)", "    `y`", "", "`z`"]) == [
-        "Example:", "    >>> f(`x`)", "    `y`", "", "``z``",
+        "Example:",
+        "    >>> f(`x`)",
+        "    `y`",
+        "",
+        "``z``",
     ]
     assert convert(["| a | b |", "|---|---|", "| `c` | d |"])[0] == ".. list-table::"
-    assert convert(["The pose: camera right"], "data")[0] == ""
+    assert convert(["The pose: camera right"], "data") == ["The", "pose: camera right"]
     assert convert(["int: the count"], "data")[0] == "int: the count"
     print("docstring_compat: self-checks passed")

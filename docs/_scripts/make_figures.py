@@ -26,13 +26,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
 
-import gaffer_envmap as ge  # noqa: E402
-from gaffer_envmap.io import read_envmap  # noqa: E402
-from gaffer_envmap.preview import tonemap_preview  # noqa: E402
+import gaffer_envmap as ge
+from gaffer_envmap.io import read_envmap
+from gaffer_envmap.preview import tonemap_preview
 
 DOCS = Path(__file__).resolve().parent.parent
 REPO = DOCS.parent
@@ -60,7 +60,7 @@ def _save(fig: plt.Figure, path: Path) -> None:
 
 
 def _axis_label(vec: np.ndarray, names: tuple[str, str, str] = ("X", "Y", "Z")) -> str:
-    """"+X" for a unit axis, else the rounded vector."""
+    """ "+X" for a unit axis, else the rounded vector."""
     v = np.asarray(vec, float)
     k = int(np.argmax(np.abs(v)))
     if abs(abs(v[k]) - 1) < 1e-9:
@@ -106,12 +106,22 @@ def conventions_table() -> str:
     for names in groups.values():
         conv = ge.get_convention(names[0])
         axis = ("x", "y", "z") if conv.frame == "camera" else ("X", "Y", "Z")
-        cells = [_axis_label(ge.uv_to_direction(np.array(u), np.array(0.5), names[0]), axis) for u in (0.0, 0.25, 0.5, 0.75)]
+        cells = [
+            _axis_label(ge.uv_to_direction(np.array(u), np.array(0.5), names[0]), axis)
+            for u in (0.0, 0.25, 0.5, 0.75)
+        ]
         top = _axis_label(ge.uv_to_direction(np.array(0.5), np.array(0.0), names[0]), axis)
         m = np.asarray(conv.to_blender)
-        mat = "I" if np.allclose(m, np.eye(3)) else "(x, y, z) → (" + ", ".join(
-            "".join(f"{'+' if c > 0 else '−'}{'xyz'[j]}" for j, c in enumerate(row) if c != 0) for row in m
-        ) + ")"
+        mat = (
+            "I"
+            if np.allclose(m, np.eye(3))
+            else "(x, y, z) → ("
+            + ", ".join(
+                "".join(f"{'+' if c > 0 else '−'}{'xyz'[j]}" for j, c in enumerate(row) if c != 0)
+                for row in m
+            )
+            + ")"
+        )
         title = " = ".join(f"`{n}`" for n in names)
         source = conv.source.replace("|", "\\|")
         lines.append(
@@ -130,7 +140,11 @@ def _label_latlong(ax: plt.Axes, conv: str, width: int, height: int) -> None:
     ax.set_xticklabels([f"u={u:g}\n{_dir_label(conv, u % 1.0, 0.5)}" for u in ticks], fontsize=8)
     ax.set_yticks([-0.5, height / 2 - 0.5, height - 0.5])
     ax.set_yticklabels(
-        [f"v=0  {_dir_label(conv, 0.5, 0.0)}", "v=0.5 horizon", f"v=1  {_dir_label(conv, 0.5, 1.0)}"],
+        [
+            f"v=0  {_dir_label(conv, 0.5, 0.0)}",
+            "v=0.5 horizon",
+            f"v=1  {_dir_label(conv, 0.5, 1.0)}",
+        ],
         fontsize=8,
     )
 
@@ -150,27 +164,52 @@ def conventions_figure(env: ge.EnvironmentMap, path: Path) -> dict[str, object]:
 
     fig, axes = plt.subplots(2, 1, figsize=(9.5, 10.0))
     for ax, img, conv, (u, v), title in (
-        (axes[0], world, "blender", (u_w, v_w),
-         "convention \"blender\" (world, z up): u = 0.5 − atan2(y, x) / 2π, v = acos(z) / π"),
-        (axes[1], cam, "neural-gaffer-camera", (u_c, v_c),
-         f"layout \"neural-gaffer-camera\": the same light seen by a camera at azimuth {FIG_AZIMUTH:g}°, "
-         f"elevation {FIG_ELEVATION:g}°\n(Blender camera axes: x right, y up, the camera looks along −z)"),
+        (
+            axes[0],
+            world,
+            "blender",
+            (u_w, v_w),
+            'convention "blender" (world, z up): u = 0.5 − atan2(y, x) / 2π, v = acos(z) / π',
+        ),
+        (
+            axes[1],
+            cam,
+            "neural-gaffer-camera",
+            (u_c, v_c),
+            f'layout "neural-gaffer-camera": the same light seen by a camera at azimuth {FIG_AZIMUTH:g}°, '
+            f"elevation {FIG_ELEVATION:g}°\n(Blender camera axes: x right, y up, the camera looks along −z)",
+        ),
     ):
         h, w = img.shape[:2]
         ax.imshow(tonemap_preview(img), interpolation="bilinear")
         _label_latlong(ax, conv, w, h)
-        ax.plot(float(u) * w - 0.5, float(v) * h - 0.5, marker="o", ms=16, mfc="none", mec="yellow", mew=2)
-        ax.annotate("sun (brightest pixel,\nplaced by direction_to_uv)", (float(u) * w, float(v) * h),
-                    xytext=(12 if u < 0.75 else -130, -30), textcoords="offset points", color="yellow",
-                    fontsize=8)
+        ax.plot(
+            float(u) * w - 0.5,
+            float(v) * h - 0.5,
+            marker="o",
+            ms=16,
+            mfc="none",
+            mec="yellow",
+            mew=2,
+        )
+        ax.annotate(
+            "sun (brightest pixel,\nplaced by direction_to_uv)",
+            (float(u) * w, float(v) * h),
+            xytext=(12 if u < 0.75 else -130, -30),
+            textcoords="offset points",
+            color="yellow",
+            fontsize=8,
+        )
         ax.set_title(title, fontsize=9)
-    fig.suptitle("Lat-long layouts: world map and camera-frame map (bundled HDRI \"sunset\")", fontsize=11)
+    fig.suptitle(
+        'Lat-long layouts: world map and camera-frame map (bundled HDRI "sunset")', fontsize=11
+    )
     fig.tight_layout()
     _save(fig, path)
     return {"sun_world": d_world.tolist(), "sun_camera": d_cam.tolist()}
 
 
-def _arrow3d(ax, origin, vec, color, label, scale=0.6, **kw) -> None:  # noqa: ANN001
+def _arrow3d(ax, origin, vec, color, label, scale=0.6, **kw) -> None:
     o = np.asarray(origin, float)
     v = np.asarray(vec, float) * scale
     ax.quiver(*o, *v, color=color, arrow_length_ratio=0.15, lw=2, **kw)
@@ -186,10 +225,18 @@ def camera_pose_figure(path: Path) -> None:
     r_cv = c2w.matrix[:3, :3]  # columns: OpenCV camera x, y, z axes in world coordinates
     fig = plt.figure(figsize=(11, 5.2))
     panels = (
-        ("W2CBlender [R | t]  (3x4, world → camera)\nrows of R = camera axes: x right, y up, z back; "
-         "looks along −z", [(r_bl[0], "x"), (r_bl[1], "y"), (r_bl[2], "z")], "−z = view"),
-        ("C2WOpenCV (4x4, camera → world)\ncolumns = camera axes: x right, y down, z forward; "
-         "looks along +z", [(r_cv[:, 0], "x"), (r_cv[:, 1], "y"), (r_cv[:, 2], "z")], "+z = view"),
+        (
+            "W2CBlender [R | t]  (3x4, world → camera)\nrows of R = camera axes: x right, y up, z back; "
+            "looks along −z",
+            [(r_bl[0], "x"), (r_bl[1], "y"), (r_bl[2], "z")],
+            "−z = view",
+        ),
+        (
+            "C2WOpenCV (4x4, camera → world)\ncolumns = camera axes: x right, y down, z forward; "
+            "looks along +z",
+            [(r_cv[:, 0], "x"), (r_cv[:, 1], "y"), (r_cv[:, 2], "z")],
+            "+z = view",
+        ),
     )
     colors = ("#d62728", "#2ca02c", "#1f77b4")
     for k, (title, axes_cam, view_label) in enumerate(panels):
@@ -199,7 +246,9 @@ def camera_pose_figure(path: Path) -> None:
         for (vec, name), col in zip(axes_cam, colors):
             _arrow3d(ax, eye, vec, col, f"cam {name}", scale=0.55)
         forward = -r_bl[2]
-        ax.plot(*np.stack([eye, eye + forward * np.linalg.norm(eye)]).T, color="grey", ls="--", lw=1)
+        ax.plot(
+            *np.stack([eye, eye + forward * np.linalg.norm(eye)]).T, color="grey", ls="--", lw=1
+        )
         ax.text(*(eye + forward * 0.9), view_label, color="grey", fontsize=8)
         ax.scatter([0], [0], [0], color="black", s=15)
         ax.set_xlim(-0.5, 2.2)
@@ -227,7 +276,9 @@ def encodings_figure(env: ge.EnvironmentMap, path: Path) -> dict[str, float]:
     """The same map and pose encoded both ways, and default − compat."""
     src = ge.resize_conservative(env, 256)  # the authors' training maps were 512x256
     pose = ge.orbit_w2c_blender(FIG_AZIMUTH, FIG_ELEVATION, 2.0)
-    enc = {mode: ge.encode_lighting(src, pose, compat=mode) for mode in ("neural-gaffer", "default")}
+    enc = {
+        mode: ge.encode_lighting(src, pose, compat=mode) for mode in ("neural-gaffer", "default")
+    }
     fig, axes = plt.subplots(2, 3, figsize=(12, 8.4))
     stats = {}
     for row, kind in enumerate(("ldr", "hdr")):
@@ -240,8 +291,8 @@ def encodings_figure(env: ge.EnvironmentMap, path: Path) -> dict[str, float]:
         im = axes[row, 2].imshow(diff, cmap="RdBu_r", vmin=-lim, vmax=lim, interpolation="nearest")
         fig.colorbar(im, ax=axes[row, 2], fraction=0.046, pad=0.04)
         name = "E_L (LDR)" if kind == "ldr" else "E_H (HDR)"
-        axes[row, 0].set_title(f"{name}, compat=\"neural-gaffer\"", fontsize=9)
-        axes[row, 1].set_title(f"{name}, compat=\"default\"", fontsize=9)
+        axes[row, 0].set_title(f'{name}, compat="neural-gaffer"', fontsize=9)
+        axes[row, 1].set_title(f'{name}, compat="default"', fontsize=9)
         axes[row, 2].set_title(f"default − compat (mean over RGB; ±{lim:.3f} shown)", fontsize=9)
         stats[f"{kind}_mean_abs_diff"] = float(np.abs(b - a).mean())
         stats[f"{kind}_max_abs_diff"] = float(np.abs(b - a).max())
@@ -250,7 +301,7 @@ def encodings_figure(env: ge.EnvironmentMap, path: Path) -> dict[str, float]:
         ax.set_xticklabels(["0", ".25", ".5", ".75", "1"], fontsize=7)
         ax.set_yticks([])
     fig.suptitle(
-        f"Bundled \"sunset\" at 512x256, camera at azimuth {FIG_AZIMUTH:g}°, elevation {FIG_ELEVATION:g}°: "
+        f'Bundled "sunset" at 512x256, camera at azimuth {FIG_AZIMUTH:g}°, elevation {FIG_ELEVATION:g}°: '
         "256x256 encodings (u ticks)",
         fontsize=10,
     )
@@ -272,13 +323,18 @@ def normaliser_figure(env: ge.EnvironmentMap, path: Path) -> None:
     compat_norm = torch.log1p(10 * rotated.flatten(1).amax(1)).numpy()
     default_norm = np.full_like(compat_norm, np.log1p(10 * float(src.radiance_linear.max())))
     fig, ax = plt.subplots(figsize=(7.5, 3.2))
-    ax.plot(azimuths, compat_norm, "o-", ms=3, label="compat: max of log1p(10 E) over the ROTATED map")
+    ax.plot(
+        azimuths, compat_norm, "o-", ms=3, label="compat: max of log1p(10 E) over the ROTATED map"
+    )
     ax.plot(azimuths, default_norm, "-", label="default: log1p(10 peak) of the SOURCE map")
     ax.set_xlabel("camera azimuth (degrees)")
     ax.set_ylabel("HDR normaliser")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2, frameon=False)
     ax.grid(alpha=0.3)
-    ax.set_title("E_H = log1p(10 E) / normaliser, for one map as the camera turns (\"sunset\", 512x256)", fontsize=9)
+    ax.set_title(
+        'E_H = log1p(10 E) / normaliser, for one map as the camera turns ("sunset", 512x256)',
+        fontsize=9,
+    )
     fig.tight_layout()
     _save(fig, path)
 
@@ -297,11 +353,11 @@ def run_tutorial(out: Path) -> list[str]:
             sections[-1][1].append(line)
     namespace: dict[str, object] = {"__name__": "tutorial", "OUT": out}
     preamble = source.split("\n# [", 1)[0]
-    exec(compile(preamble, "tutorial.py", "exec"), namespace)  # noqa: S102 - our own script
+    exec(compile(preamble, "tutorial.py", "exec"), namespace)
     for name, lines in sections:
         buf = io.StringIO()
         with contextlib.redirect_stdout(buf):
-            exec(compile("\n".join(lines), f"tutorial.py[{name}]", "exec"), namespace)  # noqa: S102
+            exec(compile("\n".join(lines), f"tutorial.py[{name}]", "exec"), namespace)
         _write(out / f"{name}.txt", buf.getvalue())
     return [name for name, _ in sections]
 
@@ -338,17 +394,17 @@ def bench_pages(out: Path) -> None:
         t = data["targets"]
         fid = data["fidelity_theirs_vs_compat"]
         text = (
-            f"**Measured on:** {_machine_line(data['machine'])}.\n\n"
-            + "\n".join(rows)
-            + "\n\n"
+            f"**Measured on:** {_machine_line(data['machine'])}.\n\n" + "\n".join(rows) + "\n\n"
             f"Targets: default ≥ {t['default_vs_theirs']['target']:g}× theirs: best measured "
             f"{t['default_vs_theirs']['best_measured']:.2f}× ({'met' if t['default_vs_theirs']['met'] else 'not met'}); "
             f"compat ≥ {t['compat_vs_theirs']['target']:g}× theirs: worst measured "
             f"{t['compat_vs_theirs']['worst_measured']:.2f}× ({'met' if t['compat_vs_theirs']['met'] else 'not met'}). "
-            f"The re-created authors' pipeline agrees with `compat=\"neural-gaffer\"` on "
+            f'The re-created authors\' pipeline agrees with `compat="neural-gaffer"` on '
             f"{fid['uint8_values_compared'] - fid['uint8_values_differing']:,} of "
             f"{fid['uint8_values_compared']:,} uint8 values (largest difference "
-            f"{fid['max_abs_difference_lsb']} LSB).\n"
+            f"{fid['max_abs_difference_lsb']} LSB).\n\n"
+            "```{image} bench/envmap_preprocess.png\n:alt: Maps per second of each preprocessing variant.\n"
+            ":width: 100%\n```\n"
         )
     else:
         text = "*No committed baseline yet: run `python benchmarks/bench_envmap_preprocess.py --update-baseline`.*\n"
@@ -362,7 +418,11 @@ def bench_pages(out: Path) -> None:
             "|---|---|---|---|---|---|",
         ]
         for r in data["results"]:
-            pe, de, dc = r["power_error"], r["direction_error_deg_first_moment"], r["direction_error_deg_bright_centroid"]
+            pe, de, dc = (
+                r["power_error"],
+                r["direction_error_deg_first_moment"],
+                r["direction_error_deg_bright_centroid"],
+            )
             rows.append(
                 f"| {r['label']} | {'on' if r['renormalize'] else 'off'} | {r['ms_per_map']['median']:.1f} "
                 f"| {pe['median']:.2e} / {pe['p90']:.2e} | {de['median']:.3f}° / {de['p90']:.3f}° "
@@ -373,7 +433,9 @@ def bench_pages(out: Path) -> None:
             f"**Measured on:** {_machine_line(data['machine'])}; {data['config']['suns']} suns.\n\n"
             + "\n".join(rows)
             + f"\n\nFloor set by the 512x256 source grid itself (first moment of the source map vs the "
-            f"true sun direction): median {floor['median']:.3f}°.\n"
+            f"true sun direction): median {floor['median']:.3f}°.\n\n"
+            "```{image} bench/envmap_filters.png\n:alt: Power error and sun-direction error against time "
+            "per map, for each rotation filter.\n:width: 100%\n```\n"
         )
     else:
         text = "*No committed baseline yet: run `python benchmarks/bench_envmap_filters.py --update-baseline`.*\n"

@@ -52,8 +52,12 @@ enc = ge.encode_lighting(env, w2c)  # default mode: 256x256, area filter, source
 # The released checkpoint expects the authors' pipeline, which they ran on 512x256 maps.
 old = ge.encode_lighting(ge.resize_conservative(env, 256), w2c, compat="neural-gaffer")
 for e in (enc, old):
-    print(f"{e.compat:14s} E_L {tuple(e.ldr.shape)}  E_H {tuple(e.hdr.shape)}  E_H max {e.hdr.max():.3f}")
-model_input = torch.cat([enc.ldr, enc.hdr], dim=1) * 2 - 1  # [B, 6, 256, 256] in [-1, 1] for the VAE
+    print(
+        f"{e.compat:14s} E_L {tuple(e.ldr.shape)}  E_H {tuple(e.hdr.shape)}  E_H max {e.hdr.max():.3f}"
+    )
+model_input = (
+    torch.cat([enc.ldr, enc.hdr], dim=1) * 2 - 1
+)  # [B, 6, 256, 256] in [-1, 1] for the VAE
 print("model input:", tuple(model_input.shape), float(model_input.min()), float(model_input.max()))
 ldr_u8, hdr_u8 = enc.to_uint8()  # round-to-nearest uint8, [B, 256, 256, 3]
 Image.fromarray(np.concatenate([ldr_u8[0], hdr_u8[0]], axis=1)).save(OUT / "encodings.png")
@@ -72,19 +76,24 @@ axes6 = np.concatenate([np.eye(3), -np.eye(3)])
 sh9, exact = ge.irradiance(cam_env, axes6), irradiance_brute_force(cam_env, axes6)
 print("irradiance, SH order 2 vs quadrature, relative error:", np.abs(sh9 / exact - 1).max(axis=1))
 sphere = np.where(inside[..., None], 0.8 / np.pi * np.clip(irr, 0, None), 0.0)  # albedo 0.8
-Image.fromarray(tonemap_preview(sphere, exposure=1.0 / float(np.percentile(sphere[inside], 99)))).save(
-    OUT / "sphere.png"
-)
+Image.fromarray(
+    tonemap_preview(sphere, exposure=1.0 / float(np.percentile(sphere[inside], 99)))
+).save(OUT / "sphere.png")
 
 # [augment]
-pool = ge.augment_pool(env)  # 2 flips x 8 yaws of 45 degrees: exact pixel permutations (the paper's ~16x)
+pool = ge.augment_pool(
+    env
+)  # 2 flips x 8 yaws of 45 degrees: exact pixel permutations (the paper's ~16x)
 print(len(pool), "maps:", [spec.tag for spec, _ in pool[:3]], "...")
 powers = np.array([ge.total_power(aug) for _, aug in pool])
 print("largest power change across the pool:", float(np.abs(powers / powers[0] - 1).max()))
 # A yaw in the pool and a turntable spin at rotation time are the same thing (same sign convention):
 spun = ge.rotate_to_camera(env, w2c, height=256, spin_deg=45.0)
 rolled = ge.rotate_to_camera(ge.yaw_roll(env, 1, 8), w2c, height=256)
-print("spin_deg=45 vs yaw_roll(1 of 8), max |difference| / peak:", float((spun - rolled).abs().max() / rolled.max()))
+print(
+    "spin_deg=45 vs yaw_roll(1 of 8), max |difference| / peak:",
+    float((spun - rolled).abs().max() / rolled.max()),
+)
 thumbs = [tonemap_preview(aug.radiance_linear[::4, ::4]) for _, aug in pool]
 grid = np.concatenate([np.concatenate(thumbs[r * 4 : r * 4 + 4], axis=1) for r in range(4)], axis=0)
 Image.fromarray(grid).save(OUT / "augment.png")

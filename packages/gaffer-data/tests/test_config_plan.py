@@ -5,8 +5,8 @@ import pytest
 
 import gaffer_data
 from gaffer_data.config import AugmentConfig, CameraConfig, RenderConfig
+from gaffer_data.dataset.schema import EnvmapRef
 from gaffer_data.errors import ConfigError, InputError
-from gaffer_data.render._augment import augment_latlong
 from gaffer_data.render.plan import (
     PoolEntry,
     look_at_c2w_blender,
@@ -15,7 +15,10 @@ from gaffer_data.render.plan import (
     scan_envmaps,
 )
 from gaffer_data.render.runner import Shard
+from gaffer_data.render.worker import augment_envmap_pixels
 from gaffer_data.testing import tiny_config, write_uniform_envmaps
+from gaffer_envmap.augment import AugmentSpec
+from gaffer_envmap.environment_map import EnvironmentMap
 
 
 def _pool(n: int = 3) -> list[PoolEntry]:
@@ -145,21 +148,29 @@ def test_look_at_straight_down_is_defined() -> None:
 
 @pytest.mark.parametrize("flip", [False, True])
 @pytest.mark.parametrize("yaw_step", [0, 1, 3])
-def test_augmentation_twin_matches_gaffer_envmap(flip: bool, yaw_step: int) -> None:
-    augment = pytest.importorskip("gaffer_envmap.augment")
-    env_mod = pytest.importorskip("gaffer_envmap.environment_map")
-    rgb = np.random.default_rng(0).random((8, 16, 3)).astype(np.float32)
-    ours = augment_latlong(rgb, flip=flip, yaw_step=yaw_step, num_steps=4)
-    env = env_mod.EnvironmentMap(radiance_linear=rgb)
-    theirs = (
-        augment.AugmentSpec(flip=flip, yaw_step=yaw_step, num_steps=4).apply(env).radiance_linear
+def test_worker_augmentation_is_gaffer_envmaps(flip: bool, yaw_step: int) -> None:
+    rgba = np.random.default_rng(0).random((8, 16, 4)).astype(np.float32)
+    ref = EnvmapRef(
+        name="m", source="/x/m.exr", source_sha256="0", flip=flip, yaw_step=yaw_step, num_steps=4
     )
-    np.testing.assert_array_equal(ours, theirs)
+    ours = augment_envmap_pixels(rgba, ref)
+    env = EnvironmentMap(radiance_linear=rgba[..., :3])
+    theirs = AugmentSpec(flip=flip, yaw_step=yaw_step, num_steps=4).apply(env).radiance_linear
+    assert ours.shape == (8, 16, 4) and ours.dtype == np.float32
+    np.testing.assert_array_equal(ours[..., :3], theirs)
+    np.testing.assert_array_equal(ours[..., 3], 1.0)
+    if yaw_step == 1 and not flip:  # a quarter turn counter-clockwise = roll left by We / 4
+        np.testing.assert_array_equal(ours[..., :3], np.roll(rgba[..., :3], -4, axis=1))
 
 
-def test_augmentation_needs_a_divisible_width() -> None:
-    with pytest.raises(ConfigError, match="num_steps"):
-        augment_latlong(np.zeros((5, 10, 3)), flip=False, yaw_step=1, num_steps=4)
+def test_worker_augmentation_rejects_bad_maps() -> None:
+    ref = EnvmapRef(
+        name="m", source="/x/m.exr", source_sha256="0", flip=False, yaw_step=1, num_steps=3
+    )
+    with pytest.raises(InputError, match=r"augment\.yaw_steps"):
+        augment_envmap_pixels(np.zeros((8, 16, 3), np.float32), ref)
+    with pytest.raises(InputError, match="2:1"):
+        augment_envmap_pixels(np.zeros((5, 16, 3), np.float32), ref)
 
 
 def test_shards_partition_the_objects() -> None:

@@ -156,3 +156,28 @@ def test_reader_does_not_import_bpy() -> None:
 
     code = "import sys, gaffer_data, gaffer_data.dataset; assert 'bpy' not in sys.modules and 'pymeshlab' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_stale_temporaries_of_a_killed_writer_are_removed(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from gaffer_data._atomic import is_stale_temporary, remove_stale_temporaries
+
+    (tmp_path / "lit").mkdir()
+    # A writer killed inside gaffer_envmap.atomic_path leaves its temporary behind.
+    code = (
+        "import os, sys; from gaffer_envmap.atomic import atomic_path\n"
+        "with atomic_path(sys.argv[1]) as tmp:\n    tmp.write_text('half'); os._exit(0)\n"
+    )
+    subprocess.run([sys.executable, "-c", code, str(tmp_path / "lit" / "000_000.exr")], check=True)
+    (tmp_path / "lit" / "000_001.exr").write_text("done")
+    (tmp_path / ".hidden.json").write_text("{}")
+    left = [p for p in tmp_path.rglob("*") if p.is_file() and is_stale_temporary(p)]
+    assert len(left) == 1 and left[0].suffix == ".exr"
+    assert remove_stale_temporaries(tmp_path) == 1
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [
+        ".hidden.json",
+        "000_001.exr",
+    ]
+    assert remove_stale_temporaries(tmp_path / "missing") == 0

@@ -17,6 +17,7 @@ import pytest
 if importlib.util.find_spec("bpy") is None:
     pytest.skip("bpy is not installed (gaffer-data[render])", allow_module_level=True)
 
+from gaffer_data._atomic import is_stale_temporary
 from gaffer_data.dataset import open_dataset, read_object
 from gaffer_data.errors import ConfigError
 from gaffer_data.recipes import scan_objects
@@ -86,7 +87,7 @@ def test_outputs_exist_and_are_valid(rendered) -> None:
             assert _png(obj.path(view.alpha)).shape == (32, 32)
         poses = obj.poses()
         assert poses.w2c_blender.shape == (2, 3, 4)
-    assert not list(out.rglob("*.tmp-*"))
+    assert not [p for p in out.rglob(".*") if is_stale_temporary(p)]
     assert not list((out / "objects" / "cube").glob("_*")), (
         "private files of complete objects are removed"
     )
@@ -242,7 +243,7 @@ def test_kill_a_worker_mid_object_then_the_retry_finishes(inputs, tmp_path: Path
     assert ds.object_ids == ("cube", "sphere") and ds.failures == ()
     for obj in ds.iter_objects(verify=True):
         assert len(obj.files) == 1 + 3 * (4 * 2 + 5 + 1)
-    assert not list(out.rglob("*.tmp-*"))
+    assert not [p for p in out.rglob(".*") if is_stale_temporary(p)]
 
 
 @pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs process groups")
@@ -272,4 +273,32 @@ def test_kill_9_the_run_then_rerun_completes(inputs, tmp_path: Path) -> None:
     assert ds.object_ids == ("cube", "sphere")
     for obj in ds.iter_objects(verify=True):
         assert len({f.path for f in obj.files}) == len(obj.files)
-    assert not list(out.rglob("*.tmp-*")) and not list(out.rglob(".scratch"))
+    assert not [p for p in out.rglob(".*") if is_stale_temporary(p)] and not list(
+        out.rglob(".scratch")
+    )
+
+
+def test_the_worker_process_never_imports_torch(inputs, tmp_path: Path) -> None:
+    from gaffer_data.render.plan import plan_object
+    from gaffer_data.render.runner import PLAN_NAME, _prepare_folder
+
+    objects, envmaps = inputs
+    plan = plan_object(
+        "cube", objects / "cube.obj", scan_envmaps(envmaps), tiny_config(views=1, lightings=1)
+    )
+    _prepare_folder(plan, tmp_path)
+    code = (
+        "import sys\nfrom gaffer_data.render import worker\n"
+        "code = worker.main(['--job', sys.argv[1], '--threads', '1'])\n"
+        "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('torch', 'pymeshlab'))\n"
+        "print('CHECK', code, 'gaffer_envmap.augment' in sys.modules, loaded)\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / PLAN_NAME)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    line = next(x for x in result.stdout.splitlines() if x.startswith("CHECK"))
+    assert line == "CHECK 0 True []", result.stderr[-2000:]
+    assert (tmp_path / plan.views[0].lit[0].exr).is_file()

@@ -10,12 +10,17 @@ from gaffer_data.config import (
     AugmentConfig,
     BounceConfig,
     CameraConfig,
+    MultiviewConfig,
     RenderConfig,
+    multiview_render_config,
 )
 from gaffer_data.dataset import (
+    AuthorsDataset,
+    AuthorsSample,
     RelightSample,
     RenderDataset,
     RenderedObject,
+    open_authors_dataset,
     open_dataset,
     read_object,
 )
@@ -34,6 +39,8 @@ from gaffer_data.errors import (
 __all__ = [
     "AreaLightConfig",
     "AugmentConfig",
+    "AuthorsDataset",
+    "AuthorsSample",
     "BounceConfig",
     "CameraConfig",
     "ConfigError",
@@ -43,6 +50,7 @@ __all__ = [
     "IntegrityError",
     "ManifestError",
     "MissingDependencyError",
+    "MultiviewConfig",
     "RelightSample",
     "RenderConfig",
     "RenderDataset",
@@ -50,6 +58,8 @@ __all__ = [
     "RenderedObject",
     "SchemaVersionError",
     "__version__",
+    "multiview_render_config",
+    "open_authors_dataset",
     "open_dataset",
     "read_object",
 ]

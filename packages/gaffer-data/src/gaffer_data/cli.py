@@ -1,4 +1,5 @@
-"""The `gaffer-data` command line: `render`, `recipe`, `filter`, `train-classifier`, `info`."""
+"""The `gaffer-data` command line: `render`, `render-multiview`, `recipe`, `filter`, `train-classifier`,
+`convert-authors`, `info`."""
 
 import argparse
 import dataclasses
@@ -6,30 +7,36 @@ import json
 import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gaffer_data.errors import GafferDataError
 
+if TYPE_CHECKING:
+    from gaffer_data.config import RenderConfig
 
-def _render(args: argparse.Namespace) -> int:
-    from gaffer_data.config import AugmentConfig, RenderConfig
+
+def _common_config(args: argparse.Namespace) -> dict[str, object]:
+    from gaffer_data.config import AugmentConfig
+
+    return {
+        "lightings": args.lightings,
+        "resolution": args.resolution,
+        "samples": args.samples,
+        "seed": args.seed,
+        "denoise": not args.no_denoise,
+        "adaptive_threshold": args.adaptive_threshold,
+        "view_transform": args.view_transform,
+        "background_visible": args.background_visible,
+        "world_map_resolution": args.world_map_resolution,
+        "augment": AugmentConfig(flip=not args.no_flip, yaw_steps=args.yaw_steps),
+    }
+
+
+def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
     from gaffer_data.recipes import scan_objects
     from gaffer_data.render.plan import scan_envmaps
     from gaffer_data.render.runner import RunOptions, Shard, render_dataset
 
-    config = RenderConfig(
-        views=args.views,
-        lightings=args.lightings,
-        resolution=args.resolution,
-        samples=args.samples,
-        seed=args.seed,
-        denoise=not args.no_denoise,
-        adaptive_threshold=args.adaptive_threshold,
-        view_transform=args.view_transform,
-        area_light_render=not args.no_area_light,
-        background_visible=args.background_visible,
-        world_map_resolution=args.world_map_resolution,
-        augment=AugmentConfig(flip=not args.no_flip, yaw_steps=args.yaw_steps),
-    )
     options = RunOptions(
         workers=args.workers,
         retries=args.retries,
@@ -52,6 +59,34 @@ def _render(args: argparse.Namespace) -> int:
     for failure in summary.failed:
         print(f"  failed {failure.object_id}: {failure.reason}", file=sys.stderr)
     return 0 if not summary.failed else 1
+
+
+def _render(args: argparse.Namespace) -> int:
+    from gaffer_data.config import RenderConfig
+
+    config = RenderConfig(
+        views=args.views,
+        area_light_render=not args.no_area_light,
+        **_common_config(args),  # type: ignore[arg-type]
+    )
+    return _run_render(args, config)
+
+
+def _render_multiview(args: argparse.Namespace) -> int:
+    from gaffer_data.config import MultiviewConfig, multiview_render_config
+
+    multiview = MultiviewConfig(
+        train_views=args.train_views,
+        test_views=args.test_views,
+        layout=args.layout,
+        elevation_deg=(args.min_elevation, args.max_elevation),
+        orbit_elevation_deg=args.orbit_elevation,
+        distance=args.distance,
+    )
+    config = multiview_render_config(
+        multiview, area_light_render=args.area_light, **_common_config(args)
+    )
+    return _run_render(args, config)
 
 
 def _recipe(args: argparse.Namespace) -> int:
@@ -80,6 +115,30 @@ def _train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _convert_authors(args: argparse.Namespace) -> int:
+    from gaffer_data.convert import ConvertOptions, convert_authors
+    from gaffer_data.dataset.manifest import read_json_value
+
+    object_ids = None
+    if args.object_list is not None:
+        ids = read_json_value(args.object_list)
+        if not isinstance(ids, list) or not all(isinstance(i, str) for i in ids):
+            raise GafferDataError(
+                f"`--object-list`={str(args.object_list)!r} must be a JSON list of object ids, "
+                "like the authors' val_unseen_object_list.json."
+            )
+        object_ids = tuple(ids)
+    options = ConvertOptions(lighting=args.lighting, object_ids=object_ids, hardlink=args.hardlink)
+    summary = convert_authors(args.src, args.out, options)
+    print(
+        f"converted {len(summary.converted)} objects ({summary.images} images), "
+        f"skipped {len(summary.skipped_complete)} already converted, failed {len(summary.failed)}"
+    )
+    for failure in summary.failed:
+        print(f"  failed {failure.object_id}: {failure.reason}", file=sys.stderr)
+    return 0 if not summary.failed else 1
+
+
 def _info(args: argparse.Namespace) -> int:
     from gaffer_data.dataset import open_dataset
 
@@ -93,18 +152,11 @@ def _info(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of `gaffer-data` (exposed for docs and tests)."""
-    parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="store_true")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    r = sub.add_parser("render", help="render objects under environment maps with Blender Cycles")
+def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
     r.add_argument("--objects", required=True, type=Path, help="mesh folder or filter .jsonl")
     r.add_argument("--envmaps", required=True, type=Path, help="folder of .exr/.hdr lat-long maps")
     r.add_argument("--out", required=True, type=Path)
-    r.add_argument("--views", type=int, default=12)
-    r.add_argument("--lightings", type=int, default=16)
+    r.add_argument("--lightings", type=int, default=lightings)
     r.add_argument("--resolution", type=int, default=512)
     r.add_argument("--samples", type=int, default=128)
     r.add_argument("--seed", type=int, default=0)
@@ -116,13 +168,39 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--no-denoise", action="store_true")
     r.add_argument("--adaptive-threshold", type=float, default=0.01)
     r.add_argument("--view-transform", default="Filmic")
-    r.add_argument("--no-area-light", action="store_true")
     r.add_argument("--background-visible", action="store_true")
     r.add_argument("--world-map-resolution", type=int, default=0, help="0: Blender's automatic")
     r.add_argument("--no-flip", action="store_true")
     r.add_argument("--yaw-steps", type=int, default=8)
     r.add_argument("--no-progress", action="store_true")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of `gaffer-data` (exposed for docs and tests)."""
+    parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="store_true")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("render", help="render objects under environment maps with Blender Cycles")
+    _add_render_args(r, lightings=16)
+    r.add_argument("--views", type=int, default=12)
+    r.add_argument("--no-area-light", action="store_true")
     r.set_defaults(func=_render)
+
+    m = sub.add_parser(
+        "render-multiview",
+        help="render multi-view 3D sets (train/test splits, shared lightings, transforms_*.json)",
+    )
+    _add_render_args(m, lightings=4)
+    m.add_argument("--train-views", type=int, default=100)
+    m.add_argument("--test-views", type=int, default=20)
+    m.add_argument("--layout", choices=["sphere", "orbit"], default="sphere")
+    m.add_argument("--min-elevation", type=float, default=-30.0, help="sphere layout, degrees")
+    m.add_argument("--max-elevation", type=float, default=90.0, help="sphere layout, degrees")
+    m.add_argument("--orbit-elevation", type=float, default=30.0, help="orbit layout, degrees")
+    m.add_argument("--distance", type=float, default=2.0, help="camera distance to the origin")
+    m.add_argument("--area-light", action="store_true", help="also render area light + passes")
+    m.set_defaults(func=_render_multiview)
 
     c = sub.add_parser("recipe", help="write the embedded default recipe (no downloads)")
     c.add_argument("out", type=Path)
@@ -145,6 +223,21 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", required=True, type=Path)
     t.add_argument("--folds", type=int, default=5)
     t.set_defaults(func=_train)
+
+    a = sub.add_parser(
+        "convert-authors", help="convert the authors' released layout into a gaffer artifact"
+    )
+    a.add_argument("src", type=Path, help="a split folder: <split>/<obj>/{VVV}_{LLL}_{env}.png ...")
+    a.add_argument("--out", required=True, type=Path)
+    a.add_argument(
+        "--lighting",
+        type=Path,
+        default=None,
+        help="folder with LDR/ and HDR_rescaled/ (or HDR_normalized/) per object (default: SRC)",
+    )
+    a.add_argument("--object-list", type=Path, default=None, help="JSON list of object ids")
+    a.add_argument("--hardlink", action="store_true", help="hard-link instead of copying")
+    a.set_defaults(func=_convert_authors)
 
     i = sub.add_parser("info", help="summarise (and optionally verify) a rendered dataset")
     i.add_argument("root", type=Path)

@@ -127,6 +127,61 @@ class BounceConfig:
                 raise ConfigError(f"`bounces.{name}`={value} must be >= 0.")
 
 
+MultiviewLayout = Literal["sphere", "orbit"]
+"""Camera layouts of multi-view sets: a Fibonacci lattice over an elevation band, or one ring."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class MultiviewConfig:
+    """A multi-view render set for 3D (paper §4.2: 100 train + 20 test poses x 4 lightings; lighting 0
+    is the one the radiance field is fitted to, lightings 1.. are the relighting targets).
+
+    Every view of an object is lit by the same `RenderConfig.lightings` environment-map draws (drawn
+    once per object, distinct maps while the pool allows), so the views of one lighting form a
+    consistent multi-view capture for a radiance field; the cameras look at the origin from a fixed
+    distance. Views `0 .. train_views - 1` are the training split, the rest the test split; which lattice
+    points are held out is a seeded permutation, so both splits cover the whole layout.
+
+    Attributes:
+        train_views: views of the training split.
+        test_views: views of the test split.
+        layout: "sphere": a Fibonacci lattice, uniform in solid angle over `elevation_deg`;
+            "orbit": one ring at `orbit_elevation_deg`, azimuths evenly spaced.
+        elevation_deg: elevation band of the sphere layout, in degrees.
+        orbit_elevation_deg: elevation of the orbit layout, in degrees.
+        distance: camera distance to the origin (object bbox side is 1).
+    """
+
+    train_views: int = 100
+    test_views: int = 20
+    layout: MultiviewLayout = "sphere"
+    elevation_deg: tuple[float, float] = (-30.0, 90.0)
+    orbit_elevation_deg: float = 30.0
+    distance: float = 2.0
+
+    def __post_init__(self) -> None:
+        if self.train_views < 1 or self.test_views < 0:
+            raise ConfigError(
+                f"`multiview.train_views`={self.train_views} must be >= 1 and "
+                f"`multiview.test_views`={self.test_views} >= 0."
+            )
+        if self.layout not in ("sphere", "orbit"):
+            raise ConfigError(f"`multiview.layout`={self.layout!r} must be 'sphere' or 'orbit'.")
+        _check_range("multiview.elevation_deg", *self.elevation_deg, min_lo=-90.0)
+        if self.elevation_deg[1] > 90.0 or not -90.0 <= self.orbit_elevation_deg <= 90.0:
+            raise ConfigError(
+                f"`multiview.elevation_deg`={self.elevation_deg} and `multiview.orbit_elevation_deg`="
+                f"{self.orbit_elevation_deg} must lie in [-90, 90]."
+            )
+        if not self.distance > 0.0:
+            raise ConfigError(f"`multiview.distance`={self.distance} must be > 0.")
+
+    @property
+    def views(self) -> int:
+        """Total views per object (train + test)."""
+        return self.train_views + self.test_views
+
+
 @dataclass(frozen=True, kw_only=True)
 class RenderConfig:
     """Everything that decides what a dataset render produces.
@@ -156,6 +211,10 @@ class RenderConfig:
         area_light: area-light render distribution.
         augment: environment-map augmentation.
         bounces: Cycles bounce limits.
+        multiview: None for the relighting dataset (per-view random cameras and envmap draws); a
+            `MultiviewConfig` for a 3D set (fixed layout, train/test splits, the same lightings for
+            every view, `transforms_{train,test}.json`); `views` must then equal its
+            `train_views + test_views` (see `multiview_render_config`).
 
     Example:
         >>> cfg = RenderConfig(views=2, lightings=3, resolution=32, samples=4)
@@ -182,8 +241,14 @@ class RenderConfig:
     area_light: AreaLightConfig = field(default_factory=AreaLightConfig)
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     bounces: BounceConfig = field(default_factory=BounceConfig)
+    multiview: MultiviewConfig | None = None
 
     def __post_init__(self) -> None:
+        if self.multiview is not None and self.views != self.multiview.views:
+            raise ConfigError(
+                f"`views`={self.views} must equal `multiview.train_views + multiview.test_views`="
+                f"{self.multiview.views}; build the config with `multiview_render_config`."
+            )
         for name in ("views", "resolution", "samples"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"`{name}`={getattr(self, name)} must be >= 1.")
@@ -227,13 +292,14 @@ class RenderConfig:
             "area_light": AreaLightConfig,
             "augment": AugmentConfig,
             "bounces": BounceConfig,
+            "multiview": MultiviewConfig,
         }
         kwargs: dict[str, Any] = {}
         names = {f.name for f in dataclasses.fields(cls)}
         for key, value in data.items():
             if key not in names:
                 continue
-            if key in nested:
+            if key in nested and value is not None:
                 sub = nested[key]
                 sub_names = {f.name for f in dataclasses.fields(sub)}
                 sub_kwargs = {
@@ -248,3 +314,30 @@ class RenderConfig:
             return cls(**kwargs)
         except TypeError as exc:
             raise ConfigError(f"`config` has a malformed field: {exc}") from exc
+
+
+def multiview_render_config(multiview: MultiviewConfig, **overrides: Any) -> RenderConfig:
+    """A `RenderConfig` for a multi-view set: `views` from `multiview`, 4 lightings, no area light.
+
+    Args:
+        multiview: the layout and splits.
+        **overrides: any other `RenderConfig` field (e.g. `resolution=256`, `lightings=4`).
+
+    Returns:
+        The config, with `views = multiview.train_views + multiview.test_views`.
+
+    Raises:
+        ConfigError: an override is out of range.
+
+    Example:
+        >>> cfg = multiview_render_config(MultiviewConfig(train_views=4, test_views=2), resolution=32)
+        >>> cfg.views, cfg.lightings, cfg.area_light_render
+        (6, 4, False)
+    """
+    kwargs: dict[str, Any] = {"lightings": 4, "area_light_render": False, **overrides}
+    kwargs["views"] = multiview.views
+    kwargs["multiview"] = multiview
+    try:
+        return RenderConfig(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"`overrides` holds an unknown field: {exc}") from exc

@@ -90,32 +90,10 @@ def scan_objects(src: str | Path) -> list[tuple[str, Path]]:
 
 
 def bundled_envmaps() -> dict[str, Path]:
-    """The 8 bundled CC0 HDRIs as {name: path} (gaffer-envmap's copy, else bpy's studio lights).
+    """The 8 bundled CC0 HDRIs as {name: path} (`gaffer_envmap.bundled_hdris`, copies of bpy's)."""
+    from gaffer_envmap.bundled import bundled_hdris
 
-    Raises:
-        MissingDependencyError: neither gaffer-envmap's data nor bpy is installed.
-    """
-    try:
-        from gaffer_envmap import bundled_hdris  # type: ignore[attr-defined]
-
-        return dict(bundled_hdris())
-    except ImportError:
-        pass
-    candidates = []
-    spec = importlib.util.find_spec("gaffer_envmap")
-    if spec is not None and spec.submodule_search_locations:
-        candidates += [Path(p) / "data" / "hdri" for p in spec.submodule_search_locations]
-    spec = importlib.util.find_spec("bpy")
-    if spec is not None and spec.submodule_search_locations:
-        for p in spec.submodule_search_locations:
-            candidates += sorted(Path(p).glob("*/datafiles/studiolights/world"))
-    for folder in candidates:
-        found = {p.stem: p for p in sorted(folder.glob("*.exr"))}
-        if found:
-            return found
-    raise MissingDependencyError(
-        'no bundled HDRIs found; install gaffer-envmap or pip install "gaffer-data[render]"'
-    )
+    return dict(bundled_hdris())
 
 
 def sample_meshes() -> dict[str, list[Path]]:

@@ -97,3 +97,19 @@ def write_uv_sphere_obj(path: Path, rings: int = 16, segments: int = 32) -> Path
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
     return path
+
+
+def write_mirror_sphere_obj(path: Path, rings: int = 64, segments: int = 128) -> Path:
+    """A smooth unit UV sphere OBJ with a perfect-mirror material (MTL PBR extension: Pm 1, Pr 0).
+
+    Blender's OBJ importer turns it into a Principled BSDF with metallic 1, roughness 0 and a white
+    base colour. The MTL file is written beside the OBJ (`<stem>.mtl`).
+    """
+    write_uv_sphere_obj(path, rings=rings, segments=segments)
+    mtl = path.with_suffix(".mtl")
+    mtl.write_text(
+        "newmtl mirror\nKd 1 1 1\nKs 1 1 1\nNs 1000\nPm 1.0\nPr 0.0\nillum 3\n", encoding="utf-8"
+    )
+    body = path.read_text(encoding="utf-8")
+    path.write_text(f"mtllib {mtl.name}\nusemtl mirror\n{body}", encoding="utf-8")
+    return path

@@ -4,6 +4,10 @@
         --checkpoint CKPT [--base-model DIR] --out OUT.png [--steps 50] [--guidance 3] [--seed 0]
         [--turntable N]
     gaffer-diffusion relight IMAGE --ldr LDR.png --hdr HDR.png --checkpoint CKPT ... (pre-encoded maps)
+    gaffer-diffusion relight IMAGES_DIR --envmaps ENVMAPS_DIR (--w2c | --azimuth --elevation)
+        --checkpoint CKPT --out OUT_DIR   (every image x every map, batched; OUT_DIR/<image>/<map>.png)
+    gaffer-diffusion evaluate --dataset DIR --checkpoint CKPT [--base-model DIR] [--envmaps DIR]
+        [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
     gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
     gaffer-diffusion init-random --preset tiny --out DIR   (random weights in our format, for demos)
 
@@ -14,9 +18,9 @@
 import argparse
 import logging
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -36,6 +40,9 @@ from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingC
 from gaffer_diffusion.preprocess import load_object_image
 from gaffer_diffusion.schedulers import SCHEDULERS
 
+if TYPE_CHECKING:
+    from tqdm import tqdm
+
 logger = logging.getLogger(__name__)
 
 
@@ -44,13 +51,23 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("relight", help="relight one object image under an environment map")
-    r.add_argument("image", type=Path, help="object image; RGBA, or RGB with --mask")
     r.add_argument(
-        "--mask", type=Path, help="object mask (white = object) for images without alpha"
+        "image", type=Path, help="object image (RGBA, or RGB with --mask), or a folder of them"
+    )
+    r.add_argument(
+        "--mask",
+        type=Path,
+        help="object mask (white = object) for images without alpha; a folder of masks with the "
+        "images' file names when IMAGE is a folder",
     )
     light = r.add_argument_group("lighting: --envmap with a pose, or pre-encoded --ldr/--hdr maps")
     light.add_argument(
         "--envmap", type=Path, help="equirectangular HDR map (.exr/.hdr), Blender z-up"
+    )
+    light.add_argument(
+        "--envmaps",
+        type=Path,
+        help="a folder of .exr/.hdr maps: relight under each of them (OUT is then a folder)",
     )
     light.add_argument("--w2c", type=Path, help="3x4 or 4x4 Blender world-to-camera .npy")
     light.add_argument("--azimuth", type=float, help="orbit camera azimuth, degrees")
@@ -76,29 +93,58 @@ def _parser() -> argparse.ArgumentParser:
         "--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)"
     )
     r.add_argument(
-        "--out", type=Path, required=True, help="output PNG (turntable: frame prefix + GIF)"
+        "--out",
+        type=Path,
+        required=True,
+        help="output PNG (turntable: frame prefix + GIF/MP4; folder of images or --envmaps: a folder)",
     )
-    r.add_argument("--steps", type=int, default=50)
-    r.add_argument("--guidance", type=float, default=3.0)
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--scheduler", choices=SCHEDULERS, default="ddim")
     r.add_argument(
         "--turntable", type=int, default=0, help="N frames of the light spinning about up"
     )
-    r.add_argument("--batch-size", type=int, default=4, help="frames per batch (turntable)")
-    r.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    r.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
+    r.add_argument(
+        "--video",
+        choices=("auto", "gif", "mp4"),
+        default="auto",
+        help="turntable animation: mp4 needs ffmpeg on PATH or PyAV; auto falls back to gif",
+    )
+    r.add_argument("--fps", type=float, default=12.0, help="turntable frames per second")
+    _add_sampling_args(r)
 
     e = sub.add_parser(
-        "evaluate", help="score predicted images against ground truth (matched by name)"
+        "evaluate",
+        help="relight a rendered dataset with a model and score it (--dataset), or score "
+        "predicted images against ground truth matched by name (--pred/--gt)",
     )
-    e.add_argument("--pred", type=Path, required=True)
-    e.add_argument("--gt", type=Path, required=True)
-    e.add_argument(
+    ds = e.add_argument_group("a model on a gaffer-data rendered dataset")
+    ds.add_argument(
+        "--dataset", type=Path, help="gaffer-data render folder (gaffer-data render --out)"
+    )
+    ds.add_argument("--checkpoint", type=Path, help="our model folder or checkpoint-80000/")
+    ds.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
+    ds.add_argument(
+        "--envmaps", type=Path, help="where the dataset's env maps are now, if they moved"
+    )
+    ds.add_argument(
+        "--input-lighting",
+        type=_input_lighting,
+        default=0,
+        help="lighting index of each view's input render, or 'area' (default 0)",
+    )
+    ds.add_argument("--limit", type=int, help="evaluate only the first N pairs")
+    ds.add_argument("--save-predictions", type=Path, help="write every prediction PNG here")
+    ds.add_argument("--compat", choices=("neural-gaffer", "default"), default="neural-gaffer")
+    _add_sampling_args(ds)
+    fo = e.add_argument_group("two folders of images")
+    fo.add_argument("--pred", type=Path, help="predicted images")
+    fo.add_argument("--gt", type=Path, help="ground-truth images with the same file names")
+    fo.add_argument(
         "--mask-dir", type=Path, help="masks with the same file names (channel alignment)"
     )
     e.add_argument(
         "--lpips-backbone", type=Path, help="torchvision AlexNet weights for standard LPIPS"
+    )
+    e.add_argument(
+        "--no-perceptual", action="store_true", help="skip the perceptual metric (faster)"
     )
     e.add_argument("--json", type=Path, help="write the full report as JSON")
     e.add_argument("--markdown", type=Path, help="write the table of means as markdown")
@@ -110,6 +156,27 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--out", type=Path, required=True)
     return p
+
+
+def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    p.add_argument("--steps", type=int, default=50, help="denoising steps (paper: 50)")
+    p.add_argument("--guidance", type=float, default=3.0, help="CFG scale (paper: 3)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scheduler", choices=SCHEDULERS, default="ddim")
+    p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
+    p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    p.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
+
+
+def _input_lighting(text: str) -> int | str:
+    if text == "area":
+        return text
+    try:
+        return int(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is neither a lighting index nor 'area'"
+        ) from exc
 
 
 def _load_model(checkpoint: Path, base_model: Path | None) -> NeuralGafferModel:
@@ -135,6 +202,30 @@ def _read_map_png(path: Path, size: int) -> torch.Tensor:
     return torch.from_numpy(arr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
 
 
+def _pose(args: argparse.Namespace) -> object:
+    from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
+
+    if args.w2c is not None:
+        if args.azimuth is not None or args.elevation is not None:
+            raise ConfigError("Pass either `--w2c` or `--azimuth`/`--elevation`, not both.")
+        return W2CBlender.from_array(np.load(args.w2c, allow_pickle=False))
+    if args.azimuth is not None and args.elevation is not None:
+        return orbit_w2c_blender(args.azimuth, args.elevation)
+    raise ConfigError("Give the camera: `--w2c W2C.npy`, or both `--azimuth` and `--elevation`.")
+
+
+def _envmap_lighting(
+    args: argparse.Namespace, envmap: Path, size: int, frames: int = 0
+) -> LightingMaps:
+    from gaffer_envmap.io import read_envmap
+
+    pose = _pose(args)
+    env = read_envmap(envmap, sanitize=args.sanitize)
+    n = max(frames, 1)
+    spin = torch.arange(n, dtype=torch.float64) * (360.0 / n) if frames > 1 else 0.0
+    return lighting_from_envmap(env, [pose] * n, size=size, compat=args.compat, spin_deg=spin)
+
+
 def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
     if args.ldr is not None or args.hdr is not None:
         if args.ldr is None or args.hdr is None or args.envmap is not None:
@@ -144,25 +235,10 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
         return LightingMaps(ldr=_read_map_png(args.ldr, size), hdr=_read_map_png(args.hdr, size))
     if args.envmap is None:
         raise ConfigError(
-            "Pass `--envmap ENV.exr` with a pose, or pre-encoded `--ldr` and `--hdr` maps."
+            "Pass `--envmap ENV.exr` (or `--envmaps DIR`) with a pose, or pre-encoded `--ldr` and "
+            "`--hdr` maps."
         )
-    from gaffer_envmap.io import read_envmap
-    from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
-
-    if args.w2c is not None:
-        if args.azimuth is not None or args.elevation is not None:
-            raise ConfigError("Pass either `--w2c` or `--azimuth`/`--elevation`, not both.")
-        pose = W2CBlender.from_array(np.load(args.w2c, allow_pickle=False))
-    elif args.azimuth is not None and args.elevation is not None:
-        pose = orbit_w2c_blender(args.azimuth, args.elevation)
-    else:
-        raise ConfigError(
-            "Give the camera: `--w2c W2C.npy`, or both `--azimuth` and `--elevation`."
-        )
-    env = read_envmap(args.envmap, sanitize=args.sanitize)
-    n = max(frames, 1)
-    spin = torch.arange(n, dtype=torch.float64) * (360.0 / n) if frames > 1 else 0.0
-    return lighting_from_envmap(env, [pose] * n, size=size, compat=args.compat, spin_deg=spin)
+    return _envmap_lighting(args, args.envmap, size, frames)
 
 
 def _save_png(path: Path, image: torch.Tensor) -> None:
@@ -171,42 +247,120 @@ def _save_png(path: Path, image: torch.Tensor) -> None:
     Image.fromarray(arr).save(path)
 
 
+def _to_uint8(image: torch.Tensor) -> np.ndarray:
+    return (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+
+
+def _progress(total: int, desc: str) -> "tqdm[Any]":
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="img", file=sys.stderr)
+
+
+def _sampling(args: argparse.Namespace) -> SamplingConfig:
+    return SamplingConfig(
+        num_inference_steps=args.steps, guidance_scale=args.guidance, scheduler=args.scheduler
+    )
+
+
 def _relight(args: argparse.Namespace) -> int:
     if args.turntable < 0 or args.batch_size < 1:
         raise ConfigError("`--turntable` must be >= 0 and `--batch-size` >= 1.")
+    grid = args.image.is_dir() or args.envmaps is not None
+    if grid and args.turntable:
+        raise ConfigError(
+            "`--turntable` spins one map around one image; it cannot be combined with a folder of "
+            "images or `--envmaps DIR`. Relight the folder without `--turntable`."
+        )
+    if args.envmaps is not None and (args.envmap is not None or args.ldr is not None):
+        raise ConfigError("Pass `--envmaps DIR` or `--envmap` / `--ldr --hdr`, not both.")
     model = _load_model(args.checkpoint, args.base_model)
+    pipe = RelightPipeline(model, RuntimeConfig(device=args.device, dtype=args.dtype))
+    if grid:
+        return _relight_grid(args, pipe)
     size = model.config.resolution
     prepared = load_object_image(args.image, mask_path=args.mask, size=size)
     lighting = _lighting(args, size, args.turntable)
-    pipe = RelightPipeline(model, RuntimeConfig(device=args.device, dtype=args.dtype))
-    sampling = SamplingConfig(
-        num_inference_steps=args.steps, guidance_scale=args.guidance, scheduler=args.scheduler
-    )
+    sampling = _sampling(args)
     n = lighting.batch_size
     frames: list[torch.Tensor] = []
-    start = time.perf_counter()
-    for lo in range(0, n, args.batch_size):
-        hi = min(lo + args.batch_size, n)
-        cond = RelightingConditions(
-            image=prepared.image.expand(hi - lo, -1, -1, -1),
-            lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
-        )
-        # the same seed for every frame: the light moves, the noise does not (less flicker)
-        out = pipe(cond, sampling, seeds=[args.seed] * (hi - lo))
-        frames.extend(out.images.cpu())
-        print(f"relit {hi}/{n} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    with _progress(n, "relight") as bar:
+        for lo in range(0, n, args.batch_size):
+            hi = min(lo + args.batch_size, n)
+            cond = RelightingConditions(
+                image=prepared.image.expand(hi - lo, -1, -1, -1),
+                lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
+            )
+            # the same seed for every frame: the light moves, the noise does not (less flicker)
+            out = pipe(cond, sampling, seeds=[args.seed] * (hi - lo))
+            frames.extend(out.images.cpu())
+            bar.update(hi - lo)
     if args.turntable > 1:
+        from gaffer_diffusion._video import write_animation
+
         stem = args.out.with_suffix("")
         for k, frame in enumerate(frames):
             _save_png(Path(f"{stem}_{k:03d}.png"), frame)
-        gif = [Image.open(Path(f"{stem}_{k:03d}.png")).convert("RGB") for k in range(len(frames))]
-        gif[0].save(
-            stem.with_suffix(".gif"), save_all=True, append_images=gif[1:], duration=80, loop=0
-        )
-        print(f"wrote {len(frames)} frames {stem}_000.png ... and {stem.with_suffix('.gif')}")
+        video = write_animation([_to_uint8(f) for f in frames], stem, fmt=args.video, fps=args.fps)
+        print(f"wrote {len(frames)} frames {stem}_000.png ... and {video}")
     else:
         _save_png(args.out, frames[0])
         print(f"wrote {args.out}")
+    return 0
+
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp")
+_ENVMAP_SUFFIXES = (".exr", ".hdr")
+
+
+def _files(folder: Path, suffixes: tuple[str, ...], what: str, flag: str) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+    if not files:
+        raise InputValueError(
+            f"`{flag}` {folder} holds no {what} ({', '.join(suffixes)} files directly in it)."
+        )
+    return files
+
+
+def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
+    """Every image x every map, batched, one progress bar: OUT/<image stem>/<map stem>.png."""
+    size = pipe.model.config.resolution
+    images = (
+        _files(args.image, _IMAGE_SUFFIXES, "images", "IMAGE")
+        if args.image.is_dir()
+        else [args.image]
+    )
+    if args.mask is not None and args.image.is_dir() and not args.mask.is_dir():
+        raise ConfigError("With a folder of images, `--mask` must be a folder of masks too.")
+    prepared = []
+    for path in images:
+        mask = args.mask / path.name if args.mask is not None and args.mask.is_dir() else args.mask
+        prepared.append(load_object_image(path, mask_path=mask, size=size).image)
+    if args.envmaps is not None:
+        maps = _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
+        lights = [(m.stem, _envmap_lighting(args, m, size)) for m in maps]
+    else:
+        label = args.envmap.stem if args.envmap is not None else args.ldr.stem
+        lights = [(label, _lighting(args, size, 0))]
+    jobs = [(i, e) for i in range(len(images)) for e in range(len(lights))]
+    sampling = _sampling(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with _progress(len(jobs), "relight") as bar:
+        for lo in range(0, len(jobs), args.batch_size):
+            chunk = jobs[lo : lo + args.batch_size]
+            cond = RelightingConditions(
+                image=torch.cat([prepared[i] for i, _ in chunk]),
+                lighting=LightingMaps(
+                    ldr=torch.cat([lights[e][1].ldr for _, e in chunk]),
+                    hdr=torch.cat([lights[e][1].hdr for _, e in chunk]),
+                ),
+            )
+            # one seed for every item: a result does not depend on the batch it landed in
+            out = pipe(cond, sampling, seeds=[args.seed] * len(chunk))
+            for (i, e), image in zip(chunk, out.images.cpu(), strict=True):
+                _save_png(args.out / images[i].stem / f"{lights[e][0]}.png", image)
+            bar.update(len(chunk))
+    print(f"wrote {len(jobs)} images ({len(images)} inputs x {len(lights)} maps) under {args.out}")
     return 0
 
 
@@ -225,9 +379,83 @@ def _read_dir_images(folder: Path, names: Sequence[str], channels: str) -> torch
     return t.permute(0, 3, 1, 2) if t.ndim == 4 else t[:, None]
 
 
-def _evaluate(args: argparse.Namespace) -> int:
+def _perceptual_arg(args: argparse.Namespace) -> Any:
     from gaffer_diffusion.errors import MetricUnavailableError
-    from gaffer_diffusion.metrics import evaluate_images, load_perceptual
+    from gaffer_diffusion.metrics import load_perceptual
+
+    if args.no_perceptual:
+        if args.lpips_backbone is not None:
+            raise ConfigError("Pass `--lpips-backbone` or `--no-perceptual`, not both.")
+        return None
+    if args.lpips_backbone is None:
+        return "auto"
+    try:
+        return load_perceptual(args.lpips_backbone)
+    except MetricUnavailableError as exc:
+        raise InputValueError(str(exc)) from exc
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    folders = args.pred is not None or args.gt is not None
+    if args.dataset is not None and folders:
+        raise ConfigError(
+            "Pass either `--dataset DIR --checkpoint CKPT` (relight and score a rendered dataset) or "
+            "`--pred DIR --gt DIR` (score existing predictions), not both."
+        )
+    if args.dataset is not None:
+        return _evaluate_dataset(args)
+    if args.pred is None or args.gt is None:
+        raise ConfigError(
+            "Pass `--dataset DIR --checkpoint CKPT`, or both `--pred DIR` and `--gt DIR`."
+        )
+    return _evaluate_folders(args)
+
+
+def _evaluate_dataset(args: argparse.Namespace) -> int:
+    from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
+
+    if args.checkpoint is None:
+        raise ConfigError(
+            "`--dataset` needs `--checkpoint CKPT` (our model folder, or the authors' "
+            "checkpoint-80000/ with `--base-model DIR`)."
+        )
+    if args.batch_size < 1:
+        raise ConfigError(f"`--batch-size` is {args.batch_size}; expected >= 1.")
+    pairs = dataset_pairs(
+        args.dataset,
+        input_lighting=args.input_lighting,
+        envmap_dirs=[args.envmaps] if args.envmaps is not None else [],
+        limit=args.limit,
+    )
+    perceptual = _perceptual_arg(args)
+    model = _load_model(args.checkpoint, args.base_model)
+    pipe = RelightPipeline(model, RuntimeConfig(device=args.device, dtype=args.dtype))
+    config = EvaluationConfig(
+        sampling=_sampling(args),
+        seed=args.seed,
+        batch_size=args.batch_size,
+        compat=args.compat,
+        predictions_dir=args.save_predictions,
+        progress=True,
+    )
+    settings = {
+        "dataset": str(args.dataset),
+        "checkpoint": str(args.checkpoint),
+        "base_model": None if args.base_model is None else str(args.base_model),
+        "input_lighting": args.input_lighting,
+    }
+    result = evaluate_dataset(pipe, pairs, config, perceptual=perceptual, settings=settings)
+    if args.json:
+        args.json.write_text(result.to_json() + "\n")
+    if args.markdown:
+        args.markdown.write_text(result.to_markdown() + "\n")
+    print(result.to_markdown())
+    print(f"\n{len(pairs)} pairs in {result.seconds:.1f} s")
+    return 0
+
+
+def _evaluate_folders(args: argparse.Namespace) -> int:
+    from gaffer_diffusion.metrics import evaluate_images
 
     exts = {".png", ".jpg", ".jpeg"}
     pred_names = (
@@ -250,12 +478,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     pred = _read_dir_images(args.pred, names, "RGB")
     gt = _read_dir_images(args.gt, names, "RGB")
     mask = _read_dir_images(args.mask_dir, names, "L") if args.mask_dir else None
-    perceptual: object = "auto"
-    if args.lpips_backbone is not None:
-        try:
-            perceptual = load_perceptual(args.lpips_backbone)
-        except MetricUnavailableError as exc:
-            raise InputValueError(str(exc)) from exc
+    perceptual = _perceptual_arg(args)
     report = evaluate_images(pred, gt, mask=mask, names=names, perceptual=perceptual)  # type: ignore[arg-type]
     if args.json:
         args.json.write_text(report.to_json())

@@ -71,3 +71,7 @@ class MissingDependencyError(GafferDiffusionError, ImportError):
 
 class MetricUnavailableError(GafferDiffusionError, RuntimeError):
     """A metric cannot be computed here (e.g. no offline weights); the message says why."""
+
+
+class DatasetError(GafferDiffusionError, ValueError):
+    """An evaluation dataset is unusable (no pairs, a missing env map or image); says how to fix it."""

@@ -27,7 +27,12 @@ from torch import Tensor
 
 from gaffer_diffusion._perceptual import LpipsAlex, StLpipsAlex
 from gaffer_diffusion._validate import check_image_batch
-from gaffer_diffusion.errors import MetricUnavailableError, MissingDependencyError, ShapeError
+from gaffer_diffusion.errors import (
+    ConfigError,
+    MetricUnavailableError,
+    MissingDependencyError,
+    ShapeError,
+)
 
 PerceptualName = Literal["stlpips-alex", "lpips-alex"]
 
@@ -288,6 +293,47 @@ def _mean(scores: list[ImageScores]) -> ImageScores:
         psnr=sum(s.psnr for s in scores) / n,
         ssim=sum(s.ssim for s in scores) / n,
         perceptual=None if any(v is None for v in perc) else sum(perc) / n,  # type: ignore[misc]
+    )
+
+
+def combine_reports(reports: "list[MetricsReport] | tuple[MetricsReport, ...]") -> MetricsReport:
+    """Merge reports of disjoint batches into one (items concatenated, means over all items).
+
+    Lets a long evaluation score batch by batch without keeping every image in memory.
+
+    Args:
+        reports: one or more reports made with the same perceptual metric and masking.
+
+    Returns:
+        The merged `MetricsReport`.
+
+    Raises:
+        ConfigError: when `reports` is empty or the reports disagree on the perceptual metric or on
+            whether a mask was used.
+    """
+    if not reports:
+        raise ConfigError("`reports` is empty; pass at least one `MetricsReport`.")
+    first = reports[0]
+    masked = first.mean_aligned_mask is not None
+    for r in reports[1:]:
+        if (
+            r.perceptual_name != first.perceptual_name
+            or (r.mean_aligned_mask is not None) != masked
+        ):
+            raise ConfigError(
+                "`reports` mix perceptual metrics or masked / unmasked alignment "
+                f"({first.perceptual_name!r} vs {r.perceptual_name!r}); score every batch the same way."
+            )
+    items = tuple(i for r in reports for i in r.items)
+    return MetricsReport(
+        items=items,
+        mean_raw=_mean([i.raw for i in items]),
+        mean_aligned_image=_mean([i.aligned_image for i in items]),
+        mean_aligned_mask=_mean([i.aligned_mask for i in items if i.aligned_mask is not None])
+        if masked
+        else None,
+        perceptual_name=first.perceptual_name,
+        perceptual_unavailable_reason=first.perceptual_unavailable_reason,
     )
 
 

@@ -95,5 +95,8 @@ def encode_neural_gaffer(rotated: Tensor, size: int = 256) -> tuple[np.ndarray, 
 
 def _pil_resize(batch_u8: np.ndarray, size: int) -> np.ndarray:
     return np.stack(
-        [np.asarray(Image.fromarray(img).resize((size, size), Image.Resampling.BILINEAR)) for img in batch_u8]
+        [
+            np.asarray(Image.fromarray(img).resize((size, size), Image.Resampling.BILINEAR))
+            for img in batch_u8
+        ]
     )

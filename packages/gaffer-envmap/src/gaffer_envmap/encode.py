@@ -83,6 +83,19 @@ def hdr_encode(radiance_linear: Tensor, peak: Tensor) -> Tensor:
     return torch.where(denom > 0, torch.log1p(HDR_GAIN * e) / safe, torch.zeros_like(e)).clamp(0, 1)
 
 
+def _encode_finite(rotated: Tensor, peak: Tensor) -> tuple[Tensor, Tensor]:
+    """`ldr_encode` and `hdr_encode` for finite input, in place where possible (the hot path).
+
+    exp(log(x) / 2.2) is the same power as x ** (1 / 2.2) (log 0 = -inf maps back to 0), about twice as
+    fast on CPU.
+    """
+    ldr = rotated.clamp(0, 1).log_().mul_(1 / LDR_GAMMA).exp_()
+    denom = torch.log1p(HDR_GAIN * peak.clamp_min(0))
+    inv = torch.where(denom > 0, 1 / torch.where(denom > 0, denom, torch.ones_like(denom)), 0.0)
+    hdr = rotated.clamp_min(0).mul_(HDR_GAIN).log1p_().mul_(inv).clamp_(0, 1)
+    return ldr, hdr
+
+
 def _pair(
     env: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor",
     w2c: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
@@ -157,12 +170,18 @@ def encode_lighting(
     if filter == "area":
         src = resize_conservative_torch(src, prefilter_height(src.shape[1], size, size, ss))
     rotated = rotate_channels_first(
-        src, rot, size, size, filter=filter, supersample=supersample, spin_deg=spin_deg, pairing="zip"
+        src,
+        rot,
+        size,
+        size,
+        filter=filter,
+        supersample=supersample,
+        spin_deg=spin_deg,
+        pairing="zip",
     )  # [B, 3, S, S]
     # Rotation-invariant normaliser: the source's peak at the resolution the rotation reads.
     peak = src.amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
-    ldr = ldr_encode(rotated)
-    hdr = hdr_encode(rotated, peak)
+    ldr, hdr = _encode_finite(rotated, peak)
     if quantize:
         ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
     return LightingEncoding(ldr=ldr, hdr=hdr, compat=compat)

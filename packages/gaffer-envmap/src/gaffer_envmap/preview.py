@@ -37,7 +37,10 @@ def contact_sheet(
         for label, img in row:
             im = Image.fromarray(img)
             w = max(1, round(im.width * cell / im.height))
-            im = im.resize((w, cell), Image.Resampling.NEAREST if im.height < cell else Image.Resampling.BILINEAR)
+            im = im.resize(
+                (w, cell),
+                Image.Resampling.NEAREST if im.height < cell else Image.Resampling.BILINEAR,
+            )
             tile = Image.new("RGB", (w, cell + label_h), (255, 255, 255))
             tile.paste(im, (0, label_h))
             ImageDraw.Draw(tile).text((2, 1), label, fill=(0, 0, 0))

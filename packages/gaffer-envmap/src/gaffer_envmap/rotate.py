@@ -176,13 +176,20 @@ def padded_grid(
 
 
 def _pad_periodic(src_cf: Tensor) -> Tensor:
-    """`[M, 3, He+2, We+2]`: one column wrapped on each side; above row 0 and below the last row, the
-    same row turned by half a turn (its neighbour across the pole)."""
-    we = src_cf.shape[3]
-    top = torch.roll(src_cf[:, :, :1], we // 2, dims=3)
-    bottom = torch.roll(src_cf[:, :, -1:], we // 2, dims=3)
-    rows = torch.cat([top, src_cf, bottom], dim=2)
-    return torch.cat([rows[..., -1:], rows, rows[..., :1]], dim=3)
+    """`[M, 3, He+2, We+2]` contiguous: one column wrapped on each side; above row 0 and below the last
+    row, the same row turned by half a turn (its neighbour across the pole). One strided copy of the
+    source plus the borders (this also turns a channels-last view into contiguous channels-first)."""
+    m, c, he, we = src_cf.shape
+    out = src_cf.new_empty((m, c, he + 2, we + 2))
+    out[:, :, 1:-1, 1:-1] = src_cf
+    half = we // 2
+    out[:, :, 0, 1 : 1 + we - half] = src_cf[:, :, 0, half:]
+    out[:, :, 0, 1 + we - half : -1] = src_cf[:, :, 0, :half]
+    out[:, :, -1, 1 : 1 + we - half] = src_cf[:, :, -1, half:]
+    out[:, :, -1, 1 + we - half : -1] = src_cf[:, :, -1, :half]
+    out[..., 0] = out[..., we]
+    out[..., -1] = out[..., 1]
+    return out
 
 
 def _sample(src_cf: Tensor, grid: Tensor, pairing: Pairing) -> Tensor:
@@ -313,10 +320,10 @@ def rotate_channels_first(
     if ss > 1:
         _, w = _camera_grid(out_h, out_w, ss, str(src.device))
         lead = out.shape[:-2]
-        # Solid-angle-weighted mean over the ss x ss sub-samples of each pixel: the row weights sum to
-        # one within a pixel, so ss * avg_pool(samples * w_row) is that mean.
-        flat = (out * w[:, None]).reshape(-1, 1, out_h * ss, out_w * ss)
-        out = (F.avg_pool2d(flat, ss) * ss).reshape(*lead, out_h, out_w)
+        # Solid-angle-weighted mean over the ss x ss sub-samples of each pixel: average the ss columns,
+        # weight each sub-row by its share of the pixel's solid angle, sum the ss sub-rows.
+        cols = F.avg_pool2d(out.reshape(-1, 1, out_h * ss, out_w * ss), (1, ss))
+        out = (cols * w[:, None]).reshape(*lead, out_h, ss, out_w).sum(dim=-2)
     out = _exact_permutations(out, src_cf, rot, spin_deg, pairing)
     if filter == "area" and renormalize:
         out = _renormalize(out, src_cf, pairing)

@@ -1,5 +1,18 @@
 """Pure reader and schema of rendered relighting datasets (no Blender import)."""
 
+from gaffer_data.dataset.authors import (
+    AUTHORS_DATASET_SCHEMA,
+    AUTHORS_DATASET_SCHEMA_VERSION,
+    AUTHORS_OBJECT_SCHEMA,
+    AUTHORS_OBJECT_SCHEMA_VERSION,
+    AuthorsDataset,
+    AuthorsLitImage,
+    AuthorsObject,
+    AuthorsSample,
+    AuthorsView,
+    open_authors_dataset,
+    read_authors_object,
+)
 from gaffer_data.dataset.manifest import check_schema, sha256_file
 from gaffer_data.dataset.reader import (
     RenderDataset,
@@ -28,16 +41,26 @@ from gaffer_data.dataset.schema import (
     Producer,
     RelightSample,
     RenderedObject,
+    Split,
     ViewRecord,
 )
 
 __all__ = [
+    "AUTHORS_DATASET_SCHEMA",
+    "AUTHORS_DATASET_SCHEMA_VERSION",
+    "AUTHORS_OBJECT_SCHEMA",
+    "AUTHORS_OBJECT_SCHEMA_VERSION",
     "DATASET_SCHEMA",
     "DATASET_SCHEMA_VERSION",
     "OBJECT_SCHEMA",
     "OBJECT_SCHEMA_VERSION",
     "AreaLightImage",
     "AreaLightSample",
+    "AuthorsDataset",
+    "AuthorsLitImage",
+    "AuthorsObject",
+    "AuthorsSample",
+    "AuthorsView",
     "CameraPoses",
     "CameraSample",
     "EnvmapRef",
@@ -51,11 +74,14 @@ __all__ = [
     "RelightSample",
     "RenderDataset",
     "RenderedObject",
+    "Split",
     "ViewRecord",
     "check_schema",
     "iter_object_samples",
     "load_poses",
+    "open_authors_dataset",
     "open_dataset",
+    "read_authors_object",
     "read_object",
     "sha256_file",
     "verify_object",

@@ -162,6 +162,7 @@ def _view_from_json(d: dict[str, Any]) -> ViewRecord:
             depth=str(area["depth"]),
         ),
         alpha=d.get("alpha"),
+        split=d.get("split"),
     )
 
 
@@ -244,22 +245,31 @@ def object_from_json(data: dict[str, Any], root: Path, *, where: str) -> Rendere
         raise ManifestError(f"{where} is malformed: {exc!r}; re-render the object.") from exc
 
 
+def read_json_value(path: Path) -> Any:
+    """Parse a JSON file of any type.
+
+    Raises:
+        ManifestError: when it is missing or not valid JSON.
+    """
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError as exc:
+        raise ManifestError(f"`{path}` does not exist; check the path.") from exc
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ManifestError(
+            f"`{path}` is not readable JSON ({exc}); delete it and write it again."
+        ) from exc
+
+
 def read_json(path: Path) -> dict[str, Any]:
     """Parse a JSON object file.
 
     Raises:
         ManifestError: when it is missing or not a JSON object.
     """
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ManifestError(
-            f"`{path}` does not exist; is this a gaffer-data render folder?"
-        ) from exc
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ManifestError(
-            f"`{path}` is not readable JSON ({exc}); delete it and re-render."
-        ) from exc
+    if not Path(path).exists():
+        raise ManifestError(f"`{path}` does not exist; is this a gaffer-data folder?")
+    data = read_json_value(path)
     if not isinstance(data, dict):
         raise ManifestError(f"`{path}` holds a JSON {type(data).__name__}, expected an object.")
     return data

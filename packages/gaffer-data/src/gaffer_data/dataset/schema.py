@@ -14,7 +14,11 @@ OUT/
     normal/{VVV}.exr                # world-space (Blender, z up) shading normals, float32 RGB
     albedo/{VVV}.exr                # diffuse colour (albedo), linear float32 RGB
     depth/{VVV}.exr                 # distance along the camera axis (Blender "Z" pass), float32
+    transforms_{train,test}.json    # multi-view sets only: NeRF-Synthetic cameras (Blender/OpenGL c2w)
 ```
+
+A multi-view set (`RenderConfig.multiview`, `gaffer-data render-multiview`) has the same layout; its
+views carry `split` ("train" first, then "test") and every view shares the same lighting draws.
 
 EXRs are linear Rec.709 float32 with premultiplied alpha (the OpenEXR convention); PNGs are 8-bit sRGB
 display images through the config's view transform, with straight (unpremultiplied) alpha.
@@ -30,17 +34,35 @@ from gaffer_data.config import RenderConfig
 
 OBJECT_SCHEMA = "gaffer.rendered_object"
 """Schema name of an object's `manifest.json`."""
-OBJECT_SCHEMA_VERSION = "1.0"
-"""MAJOR.MINOR version this package writes and reads (see `gaffer_data.dataset.manifest`)."""
+OBJECT_SCHEMA_VERSION = "1.1"
+"""MAJOR.MINOR version this package writes and reads (see `gaffer_data.dataset.manifest`).
+
+1.1 added `ViewRecord.split`, `RenderConfig.multiview` and the `transforms` payloads (multi-view sets).
+"""
 DATASET_SCHEMA = "gaffer.render_dataset"
 """Schema name of a dataset's top-level `dataset.json`."""
-DATASET_SCHEMA_VERSION = "1.0"
+DATASET_SCHEMA_VERSION = "1.1"
 
+Split = Literal["train", "test"]
+"""The split of a view in a multi-view set."""
 ColorSpace = Literal["linear_rec709", "srgb", "data"]
 """`linear_rec709`: scene-linear EXR; `srgb`: 8-bit display PNG; `data`: non-colour (normals, depth)."""
 FileKind = Literal[
-    "lit_exr", "lit_png", "area_exr", "area_png", "alpha", "normal", "albedo", "depth", "cameras"
+    "lit_exr",
+    "lit_png",
+    "area_exr",
+    "area_png",
+    "alpha",
+    "normal",
+    "albedo",
+    "depth",
+    "cameras",
+    "envmap_ldr",
+    "envmap_hdr",
+    "transforms",
 ]
+"""What a payload holds; `envmap_ldr`/`envmap_hdr` are the authors' camera-frame lighting maps
+(converted datasets), `transforms` a NeRF-Synthetic `transforms_*.json` (multi-view sets)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -165,6 +187,7 @@ class ViewRecord:
         lit: the environment-map renders, in lighting order.
         area: the area-light render, or None when the config disabled it.
         alpha: path of the 8-bit object mask, or None when no render had a transparent film.
+        split: "train" or "test" in a multi-view set; None in the relighting dataset.
     """
 
     index: int
@@ -172,6 +195,7 @@ class ViewRecord:
     lit: tuple[LitImage, ...]
     area: AreaLightImage | None
     alpha: str | None
+    split: Split | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -263,6 +287,14 @@ class RenderedObject:
     def path(self, relative: str) -> Path:
         """Absolute path of a payload given its manifest-relative path."""
         return self.root / relative
+
+    def split_views(self, split: Split) -> tuple[ViewRecord, ...]:
+        """The views of one split of a multi-view set ("train" or "test"); empty otherwise."""
+        return tuple(v for v in self.views if v.split == split)
+
+    def transforms_path(self, split: Split) -> Path:
+        """`transforms_{split}.json` of a multi-view set (NeRF-Synthetic format, see `nerf_transforms`)."""
+        return self.root / f"transforms_{split}.json"
 
     def poses(self) -> CameraPoses:
         """Load `cameras.npz` (with `allow_pickle=False`).

@@ -117,7 +117,8 @@ def train_classifier(
     scores = cross_val_score(model, x, y, cv=cv, scoring="accuracy")
     model.fit(x, y)
     out = Path(out)
-    model_path = atomic_write(out / "model.pkl", lambda tmp: tmp.write_bytes(pickle.dumps(model)))
+    model_path = out / "model.pkl"
+    atomic_write(model_path, lambda tmp: tmp.write_bytes(pickle.dumps(model)))
     report = ClassifierReport(
         samples=len(ids),
         positives=int(counts[1]),

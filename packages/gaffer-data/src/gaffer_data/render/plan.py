@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gaffer_data.config import RenderConfig
+from gaffer_data.config import MultiviewConfig, RenderConfig
 from gaffer_data.dataset.schema import (
     AreaLightImage,
     AreaLightSample,
@@ -26,7 +26,7 @@ from gaffer_data.dataset.schema import (
     ObjectPlan,
     ViewRecord,
 )
-from gaffer_data.errors import InputError
+from gaffer_data.errors import ConfigError, InputError
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 # Blender camera axes (x right, y up, looking down -z) -> OpenCV axes (x right, y down, looking down +z).
@@ -221,3 +221,205 @@ def plan_poses(plan: ObjectPlan) -> CameraPoses:
     """The `cameras.npz` payload of a plan (cameras look at the origin, +z up)."""
     c2w = np.stack([look_at_c2w_blender(v.camera.position) for v in plan.views])
     return poses_from_c2w_blender(c2w, plan.intrinsics)
+
+
+def multiview_positions(multiview: MultiviewConfig, rng: np.random.Generator) -> np.ndarray:
+    """`[N, 3]` (elevation_deg, azimuth_deg, distance) of the layout's N = train + test cameras.
+
+    "sphere": a Fibonacci lattice, uniform in solid angle over the elevation band (z uniform in
+    [sin e0, sin e1], azimuth stepping by the golden angle), turned about z by a random offset;
+    "orbit": one ring at `orbit_elevation_deg` with evenly spaced azimuths from a random offset.
+    """
+    n = multiview.views
+    offset = float(rng.uniform(0.0, 360.0))
+    i = np.arange(n) + 0.5
+    if multiview.layout == "sphere":
+        lo, hi = np.sin(np.deg2rad(multiview.elevation_deg))
+        elevation = np.rad2deg(np.arcsin(lo + (hi - lo) * i / n))
+        golden_deg = 180.0 * (3.0 - np.sqrt(5.0))
+        azimuth = np.mod(offset + golden_deg * np.arange(n), 360.0)
+    else:
+        elevation = np.full(n, multiview.orbit_elevation_deg)
+        azimuth = np.mod(offset + 360.0 * np.arange(n) / n, 360.0)
+    return np.stack([elevation, azimuth, np.full(n, multiview.distance)], axis=-1)
+
+
+def plan_multiview_object(
+    object_id: str, source: str | Path, pool: Sequence[PoolEntry], config: RenderConfig
+) -> ObjectPlan:
+    """Plan a multi-view set: fixed layout, train/test splits, the same lightings for every view.
+
+    Views `0 .. train_views - 1` are the training split (in layout order), the rest the test split; a
+    seeded permutation picks which layout points are held out. The `config.lightings` draws are made
+    once per object (distinct pool maps while the pool allows), each with its flip and yaw.
+
+    Raises:
+        ConfigError: `config.multiview` is None.
+        InputError: an empty pool with `config.lightings > 0`.
+    """
+    multiview = config.multiview
+    if multiview is None:
+        raise ConfigError("`config.multiview` is None; use `plan_object` for relighting datasets.")
+    if config.lightings > 0 and not pool:
+        raise InputError("`pool` is empty but `lightings` > 0; pass a folder of environment maps.")
+    seq = np.random.SeedSequence([config.seed, stable_object_hash(object_id)])
+    cam_rng, env_rng, area_rng = (np.random.default_rng(s) for s in seq.spawn(3))
+    positions = multiview_positions(multiview, cam_rng)
+    held_out = np.sort(cam_rng.permutation(multiview.views)[: multiview.test_views])
+    order = [k for k in range(multiview.views) if k not in set(held_out.tolist())]
+    order += held_out.tolist()
+    replace = config.lightings > len(pool)
+    picks = env_rng.choice(len(pool), size=config.lightings, replace=replace) if pool else []
+    refs = []
+    for index in picks:
+        entry = pool[int(index)]
+        flip = bool(env_rng.integers(2)) if config.augment.flip else False
+        refs.append(
+            EnvmapRef(
+                name=entry.name,
+                source=str(entry.path),
+                source_sha256=entry.sha256,
+                flip=flip,
+                yaw_step=int(env_rng.integers(config.augment.yaw_steps)),
+                num_steps=config.augment.yaw_steps,
+                strength=config.envmap_strength,
+            )
+        )
+    area_cfg = config.area_light
+    views = []
+    for v, k in enumerate(order):
+        elevation, azimuth, distance = (float(x) for x in positions[k])
+        x, y, z = (float(c) for c in camera_position(elevation, azimuth, distance))
+        lit = tuple(
+            LitImage(
+                lighting_index=li,
+                envmap=ref,
+                exr=f"lit/{v:03d}_{li:03d}.exr",
+                png=f"lit/{v:03d}_{li:03d}.png",
+            )
+            for li, ref in enumerate(refs)
+        )
+        area = None
+        if config.area_light_render:
+            area = AreaLightImage(
+                light=AreaLightSample(
+                    location=(
+                        _uniform(area_rng, area_cfg.xy),
+                        _uniform(area_rng, area_cfg.xy),
+                        _uniform(area_rng, area_cfg.z),
+                    ),
+                    energy=_uniform(area_rng, area_cfg.energy),
+                    scale=area_cfg.scale,
+                    world_grey=area_cfg.world_grey,
+                ),
+                exr=f"area/{v:03d}.exr",
+                png=f"area/{v:03d}.png",
+                normal=f"normal/{v:03d}.exr",
+                albedo=f"albedo/{v:03d}.exr",
+                depth=f"depth/{v:03d}.exr",
+            )
+        has_mask = area is not None or (lit and not config.background_visible)
+        views.append(
+            ViewRecord(
+                index=v,
+                camera=CameraSample(
+                    elevation_deg=elevation,
+                    azimuth_deg=azimuth,
+                    distance=distance,
+                    position=(x, y, z),
+                ),
+                lit=lit,
+                area=area,
+                alpha=f"alpha/{v:03d}.png" if has_mask else None,
+                split="train" if v < multiview.train_views else "test",
+            )
+        )
+    return ObjectPlan(
+        object_id=object_id,
+        source=str(source),
+        views=tuple(views),
+        intrinsics=intrinsics_for(config),
+        config=config,
+    )
+
+
+def plan_for(
+    object_id: str, source: str | Path, pool: Sequence[PoolEntry], config: RenderConfig
+) -> ObjectPlan:
+    """`plan_multiview_object` when `config.multiview` is set, else `plan_object`."""
+    if config.multiview is not None:
+        return plan_multiview_object(object_id, source, pool, config)
+    return plan_object(object_id, source, pool, config)
+
+
+def camera_angle_x(config: RenderConfig) -> float:
+    """Horizontal field of view in radians (NeRF-Synthetic's `camera_angle_x`): 2 atan(sensor / 2 lens)."""
+    return 2.0 * math.atan(config.camera.sensor_mm / (2.0 * config.camera.lens_mm))
+
+
+def nerf_transforms(plan: ObjectPlan, split: str) -> dict[str, object]:
+    """The NeRF-Synthetic `transforms_{split}.json` body of a multi-view plan.
+
+    `transform_matrix` is the 4x4 camera-to-world in Blender's world (z up) and Blender/OpenGL camera
+    axes (x right, y up, the camera looks along -z): exactly what NeRF-Synthetic stores, so loaders
+    written for it (which flip y and z to get OpenCV) work unchanged. `file_path` is the lighting-0 PNG
+    without its suffix, relative to the object folder (loaders append ".png"); the PNG has straight
+    alpha over a transparent film, as NeRF-Synthetic's. Each frame also lists every lighting's image
+    (`lit`), and the top level the lightings, the intrinsics in pixels and the convention by name.
+
+    Raises:
+        ConfigError: `split` is not "train" or "test", or the plan is not a multi-view plan.
+    """
+    if split not in ("train", "test"):
+        raise ConfigError(f"`split`={split!r} must be 'train' or 'test'.")
+    if plan.config.multiview is None:
+        raise ConfigError("`plan` is not a multi-view plan (`config.multiview` is None).")
+    poses = plan_poses(plan)
+    lightings = []
+    if plan.views and plan.views[0].lit:
+        lightings = [
+            {
+                "lighting_index": li.lighting_index,
+                "envmap": li.envmap.name,
+                "flip": li.envmap.flip,
+                "yaw_step": li.envmap.yaw_step,
+                "num_steps": li.envmap.num_steps,
+            }
+            for li in plan.views[0].lit
+        ]
+    frames = []
+    for view in plan.views:
+        if view.split != split:
+            continue
+        assert view.lit or view.area is not None  # internal: RenderConfig needs one of them
+        c2w = np.eye(4)
+        c2w[:3] = np.linalg.inv(np.vstack([poses.w2c_blender[view.index], [0, 0, 0, 1]]))[:3]
+        frames.append(
+            {
+                "file_path": "./"
+                + (view.lit[0].png if view.lit else view.area.png).removesuffix(".png"),
+                "transform_matrix": c2w.tolist(),
+                "view_index": view.index,
+                "lit": [
+                    {
+                        "lighting_index": li.lighting_index,
+                        "file_path": "./" + li.png.removesuffix(".png"),
+                    }
+                    for li in view.lit
+                ],
+                "alpha": None if view.alpha is None else "./" + view.alpha,
+            }
+        )
+    k = plan.intrinsics
+    return {
+        "camera_angle_x": camera_angle_x(plan.config),
+        "camera_convention": "blender_opengl_c2w",
+        "w": k.width,
+        "h": k.height,
+        "fl_x": k.fx,
+        "fl_y": k.fy,
+        "cx": k.cx,
+        "cy": k.cy,
+        "lightings": lightings,
+        "frames": frames,
+    }

@@ -105,7 +105,8 @@ def make_object(index: int, seed: int, out: Path) -> Path:
     def export(tmp: Path) -> None:
         bpy.ops.export_scene.gltf(filepath=str(tmp), export_format="GLB", use_selection=False)
 
-    return atomic_write(path, export)
+    atomic_write(path, export)
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -43,7 +43,13 @@ from gaffer_data.dataset.schema import (
     ObjectPlan,
 )
 from gaffer_data.errors import ConfigError, InputError, ManifestError
-from gaffer_data.render.plan import PoolEntry, plan_object, plan_poses, stable_object_hash
+from gaffer_data.render.plan import (
+    PoolEntry,
+    nerf_transforms,
+    plan_for,
+    plan_poses,
+    stable_object_hash,
+)
 from gaffer_data.render.worker import EVENT_PREFIX, NORMALIZATION_NAME
 
 logger = logging.getLogger(__name__)
@@ -153,6 +159,8 @@ def _file_records(plan: ObjectPlan, root: Path) -> list[FileRecord]:
         )
 
     add("cameras.npz", "cameras", "npz", (), "data")
+    for split in transforms_splits(plan):
+        add(f"transforms_{split}.json", "transforms", "json", (), "data")
     for view in plan.views:
         for lit in view.lit:
             add(lit.exr, "lit_exr", "float32", (r, r, 4), "linear_rec709")
@@ -244,7 +252,16 @@ def _run_worker(
     return False, f"{reason} (exit code {code}; log: {log_path})"
 
 
+def transforms_splits(plan: ObjectPlan) -> tuple[str, ...]:
+    """The splits that get a `transforms_{split}.json` (multi-view plans only; empty splits skipped)."""
+    if plan.config.multiview is None:
+        return ()
+    return tuple(s for s in ("train", "test") if any(v.split == s for v in plan.views))
+
+
 def _finish_object(plan: ObjectPlan, root: Path, source_sha256: str) -> None:
+    for split in transforms_splits(plan):
+        atomic_write_json(root / f"transforms_{split}.json", nerf_transforms(plan, split))
     norm = read_json(root / NORMALIZATION_NAME)
     manifest = object_manifest_json(
         plan,
@@ -329,7 +346,7 @@ def render_dataset(
             skipped.append(oid)
         else:
             todo.append((oid, Path(path)))
-    plans = [plan_object(oid, path, pool, config) for oid, path in todo]
+    plans = [plan_for(oid, path, pool, config) for oid, path in todo]
     threads = config.threads or max(1, (os.cpu_count() or 1) // options.workers)
     lock = threading.Lock()
     image_seconds: list[float] = []

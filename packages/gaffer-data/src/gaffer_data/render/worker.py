@@ -2,7 +2,8 @@
 
     python -m gaffer_data.render.worker --job OBJECT_DIR/_plan.json [--threads N]
 
-It imports bpy (never pymeshlab or torch), writes every image atomically and skips images that already
+It imports bpy and the numpy-only modules of gaffer-envmap (`augment`, `atomic`), never pymeshlab or
+torch (a test checks `sys.modules`), writes every image atomically and skips images that already
 exist (so a killed object resumes where it stopped), and reports progress on stdout as lines starting
 with `GAFFER_EVENT ` followed by JSON. Exit codes: 0 done, 2 bad input, 3 bpy missing, 1 other errors.
 """
@@ -25,8 +26,10 @@ from gaffer_data._atomic import atomic_write, atomic_write_json
 from gaffer_data.dataset.manifest import plan_from_json, read_json
 from gaffer_data.dataset.schema import EnvmapRef, ObjectPlan, ViewRecord
 from gaffer_data.errors import GafferDataError, InputError
-from gaffer_data.render._augment import augment_latlong
 from gaffer_data.render.plan import look_at_c2w_blender
+from gaffer_envmap.augment import AugmentSpec
+from gaffer_envmap.environment_map import EnvironmentMap
+from gaffer_envmap.errors import GafferEnvmapError
 
 logger = logging.getLogger("gaffer_data.render.worker")
 
@@ -52,6 +55,31 @@ def _die_with_parent() -> None:
         os._exit(1)
 
 
+def augment_envmap_pixels(pixels: np.ndarray, ref: EnvmapRef) -> np.ndarray:
+    """Apply `ref`'s augmentation to lat-long pixels with gaffer-envmap's `AugmentSpec`.
+
+    Args:
+        pixels: `[He, We, 3|4]` top-down float pixels (Blender convention); alpha is dropped.
+        ref: the draw (flip, then a yaw roll of `yaw_step / num_steps` of a turn).
+
+    Returns:
+        `[He, We, 4]` float32 RGBA pixels with alpha 1, ready for `_scene.image_from_pixels`.
+
+    Raises:
+        InputError: the map is not 2:1 or its width is not divisible by `num_steps`.
+    """
+    try:
+        env = EnvironmentMap(radiance_linear=np.asarray(pixels)[..., :3])
+        spec = AugmentSpec(flip=ref.flip, yaw_step=ref.yaw_step, num_steps=ref.num_steps)
+        rgb = spec.apply(env).radiance_linear
+    except GafferEnvmapError as exc:
+        raise InputError(
+            f"environment map `{ref.source}` cannot be augmented ({exc}); use 2:1 lat-long maps whose "
+            "width `augment.yaw_steps` divides."
+        ) from exc
+    return np.concatenate([rgb, np.ones_like(rgb[..., :1])], axis=-1)
+
+
 class _EnvmapCache:
     """Augmented world images, loaded once per (source, flip, yaw) and evicted least recently used."""
 
@@ -75,10 +103,7 @@ class _EnvmapCache:
             self._sources[ref.source] = _scene.load_envmap_pixels(path)
             while len(self._sources) > 2:
                 self._sources.popitem(last=False)
-        pixels = augment_latlong(
-            self._sources[ref.source], flip=ref.flip, yaw_step=ref.yaw_step, num_steps=ref.num_steps
-        )
-        pixels[..., 3] = 1.0
+        pixels = augment_envmap_pixels(self._sources[ref.source], ref)
         image = _scene.image_from_pixels(f"env_{ref.name}_{int(ref.flip)}_{ref.yaw_step}", pixels)
         self._images[key] = image
         while len(self._images) > _IMAGE_CACHE_SIZE:

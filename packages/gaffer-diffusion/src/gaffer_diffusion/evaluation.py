@@ -1,0 +1,482 @@
+"""Evaluate a relighting model on a rendered dataset (paper §4, official implementation §5).
+
+A gaffer-data dataset holds, per object and camera view, renders under several environment-map draws
+(`lit/{VVV}_{LLL}.png`), the camera pose and which map (and augmentation) lit each render. Evaluation
+pairs one render of a view (the *input*, lighting `input_lighting`, or the area-light render) with every
+other lighting of the same view (the *targets*), as the paper's protocol does (input and target share
+the camera; only the lighting changes). For each pair the model relights the input under the target's
+environment map, rotated into the view's camera frame by gaffer-envmap (`compat="neural-gaffer"` by
+default, the encoding of the released checkpoint), and the prediction is scored against the target
+render with `gaffer_diffusion.metrics`: PSNR, SSIM and the perceptual distance, raw and channel-aligned
+(means over the whole image and over the object mask), per pair and averaged.
+
+Images are scored the way the authors score them: full frame, object composited on a white background,
+prediction quantised to 8 bits. Renders at another resolution than the model's are resized (PIL bicubic)
+before use, for input and target alike.
+
+gaffer-data is imported lazily, only here: `pip install "gaffer-diffusion[eval]"`.
+"""
+
+import functools
+import logging
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from PIL import Image
+from torch import Tensor
+
+from gaffer_diffusion.conditioning import (
+    CompatMode,
+    LightingMaps,
+    RelightingConditions,
+    lighting_from_envmap,
+)
+from gaffer_diffusion.errors import ConfigError, DatasetError, MissingDependencyError
+from gaffer_diffusion.metrics import (
+    MetricsReport,
+    PerceptualMetric,
+    combine_reports,
+    evaluate_images,
+    load_perceptual,
+)
+from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
+
+logger = logging.getLogger(__name__)
+
+InputLighting = int | Literal["area"]
+"""Which render of a view is the model's input: a lighting index `LLL`, or "area" (area-light render)."""
+
+ENVMAP_SUFFIXES = (".exr", ".hdr")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnvmapLighting:
+    """A target lighting as the renderer used it: a world map, its augmentation and the camera.
+
+    Attributes:
+        source: the environment-map file (lat-long, Blender convention, z up).
+        flip: mirrored horizontally before the yaw (gaffer-envmap `AugmentSpec`).
+        yaw_step: roll by `yaw_step / num_steps` of a turn.
+        num_steps: yaw steps per turn.
+        strength: Blender world strength the radiance was multiplied by.
+        w2c_blender: `[3, 4]` world-to-camera matrix of the view (Blender camera axes).
+    """
+
+    source: Path
+    flip: bool
+    yaw_step: int
+    num_steps: int
+    strength: float
+    w2c_blender: np.ndarray = field(repr=False, compare=False)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvalPair:
+    """One (input render, target lighting) pair of the same object and view.
+
+    Attributes:
+        name: `"{object_id}/{VVV}_{input}_to_{LLL}"`, unique in a dataset.
+        object_id: the object.
+        view_index: the camera view `VVV`.
+        target_lighting: the target lighting index `LLL`.
+        input_image: RGBA PNG of the input render (sRGB, straight alpha).
+        target_image: RGBA PNG of the ground-truth render under the target lighting.
+        mask: the view's 8-bit object mask, or None (the target's alpha channel is used).
+        lighting: the target lighting.
+    """
+
+    name: str
+    object_id: str
+    view_index: int
+    target_lighting: int
+    input_image: Path
+    target_image: Path
+    mask: Path | None
+    lighting: EnvmapLighting
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvaluationConfig:
+    """How `evaluate_dataset` samples and scores.
+
+    Attributes:
+        sampling: steps, guidance and sampler (default: the paper's DDIM 50, CFG 3).
+        seed: seed of every pair's initial noise (the same for each pair, so results do not depend on
+            batching or order).
+        batch_size: pairs per sampling call.
+        compat: gaffer-envmap lighting encoding; "neural-gaffer" matches the released checkpoint.
+        predictions_dir: also write every prediction as `DIR/{name}.png`; None: keep nothing.
+        progress: show a tqdm progress bar on stderr.
+
+    Raises:
+        ConfigError: on a non-positive `batch_size` or an unknown `compat`.
+    """
+
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    seed: int = 0
+    batch_size: int = 4
+    compat: CompatMode = "neural-gaffer"
+    predictions_dir: Path | None = None
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise ConfigError(f"`batch_size` is {self.batch_size!r}; expected an int >= 1.")
+        if self.compat not in ("neural-gaffer", "default"):
+            raise ConfigError(
+                f"`compat` is {self.compat!r}; expected 'neural-gaffer' (released checkpoint) or "
+                "'default'."
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class DatasetEvaluation:
+    """Result of `evaluate_dataset`: the scores and everything needed to reproduce them.
+
+    Attributes:
+        report: per-pair and mean metrics (raw, aligned over the image, aligned over the mask).
+        settings: dataset, checkpoint, sampling, seed, dtype, device, ... as plain JSON values.
+        seconds: wall time of sampling and scoring.
+    """
+
+    report: MetricsReport
+    settings: dict[str, Any]
+    seconds: float
+
+    def to_json(self) -> str:
+        """Settings, timing and the full report as one JSON document."""
+        import json
+
+        return json.dumps(
+            {
+                "settings": self.settings,
+                "seconds": round(self.seconds, 3),
+                "metrics": json.loads(self.report.to_json()),
+            },
+            indent=2,
+        )
+
+    def to_markdown(self) -> str:
+        """The settings as a list, then the table of means."""
+        lines = ["| setting | value |", "|---|---|"]
+        lines += [f"| {k} | {v} |" for k, v in self.settings.items()]
+        return "\n".join(lines) + "\n\n" + self.report.to_markdown()
+
+
+def _require_gaffer_data() -> Any:
+    try:
+        import gaffer_data
+    except ImportError as exc:
+        raise MissingDependencyError(
+            'Evaluating on a rendered dataset needs gaffer-data: pip install "gaffer-diffusion[eval]"'
+        ) from exc
+    return gaffer_data
+
+
+def _resolve_envmap(
+    source: str, name: str, dataset_root: Path, envmap_dirs: Sequence[Path]
+) -> Path:
+    """Find an env map that may have moved since rendering: as recorded, then by name in the dirs."""
+    recorded = Path(source)
+    candidates = [recorded]
+    if not recorded.is_absolute():
+        candidates.append(dataset_root / recorded)
+    for d in envmap_dirs:
+        candidates.append(Path(d) / recorded.name)
+        candidates += [Path(d) / f"{name}{suffix}" for suffix in ENVMAP_SUFFIXES]
+    for c in candidates:
+        if c.is_file():
+            return c
+    looked = "\n".join(f"  - {c}" for c in candidates)
+    raise DatasetError(
+        f"The environment map `{name}` that lit this dataset was not found. Looked in:\n{looked}\n"
+        "Pass the folder holding the maps the dataset was rendered with as `--envmaps DIR` "
+        "(`envmap_dirs`)."
+    )
+
+
+def dataset_pairs(
+    root: str | Path,
+    *,
+    input_lighting: InputLighting = 0,
+    envmap_dirs: Sequence[str | Path] = (),
+    limit: int | None = None,
+) -> tuple[EvalPair, ...]:
+    """Every (input, target lighting) pair of a gaffer-data rendered dataset.
+
+    Args:
+        root: the dataset folder (`gaffer_data.open_dataset`).
+        input_lighting: the lighting index of the input render of each view, or "area" for the
+            area-light render (then every lighting is a target).
+        envmap_dirs: folders to search for env maps whose recorded path no longer exists.
+        limit: keep only the first `limit` pairs (in object, view, lighting order).
+
+    Returns:
+        The pairs, in object, view, target-lighting order.
+
+    Raises:
+        MissingDependencyError: without gaffer-data.
+        DatasetError: when the dataset yields no pair, a view lacks the input render, or an env map
+            cannot be found.
+    """
+    gaffer_data = _require_gaffer_data()
+    if limit is not None and limit < 1:
+        raise ConfigError(f"`limit` is {limit}; expected >= 1 or None.")
+    if not (input_lighting == "area" or (isinstance(input_lighting, int) and input_lighting >= 0)):
+        raise ConfigError(
+            f"`input_lighting` is {input_lighting!r}; expected a lighting index >= 0 or 'area'."
+        )
+    root = Path(root)
+    dirs = tuple(Path(d) for d in envmap_dirs)
+    resolve = functools.lru_cache(maxsize=None)(
+        lambda source, name: _resolve_envmap(source, name, root, dirs)
+    )
+    pairs: list[EvalPair] = []
+    for obj in gaffer_data.open_dataset(root).iter_objects():
+        poses = obj.poses()
+        for view in obj.views:
+            if input_lighting == "area":
+                if view.area is None:
+                    raise DatasetError(
+                        f"`{obj.object_id}` view {view.index} has no area-light render; pass a "
+                        "lighting index as `input_lighting` (`--input-lighting 0`)."
+                    )
+                input_png, input_tag = obj.path(view.area.png), "area"
+            else:
+                by_index = {lit.lighting_index: lit for lit in view.lit}
+                if input_lighting not in by_index:
+                    raise DatasetError(
+                        f"`{obj.object_id}` view {view.index} has no lighting {input_lighting} "
+                        f"(it has {sorted(by_index)}); choose another `input_lighting`."
+                    )
+                input_png = obj.path(by_index[input_lighting].png)
+                input_tag = f"{input_lighting:03d}"
+            for lit in view.lit:
+                if lit.lighting_index == input_lighting:
+                    continue
+                ref = lit.envmap
+                pairs.append(
+                    EvalPair(
+                        name=f"{obj.object_id}/{view.index:03d}_{input_tag}_to_{lit.lighting_index:03d}",
+                        object_id=obj.object_id,
+                        view_index=view.index,
+                        target_lighting=lit.lighting_index,
+                        input_image=input_png,
+                        target_image=obj.path(lit.png),
+                        mask=None if view.alpha is None else obj.path(view.alpha),
+                        lighting=EnvmapLighting(
+                            source=resolve(ref.source, ref.name),
+                            flip=bool(ref.flip),
+                            yaw_step=int(ref.yaw_step),
+                            num_steps=int(ref.num_steps),
+                            strength=float(ref.strength),
+                            w2c_blender=np.asarray(poses.w2c_blender[view.index], np.float64),
+                        ),
+                    )
+                )
+                if limit is not None and len(pairs) >= limit:
+                    return tuple(pairs)
+    if not pairs:
+        raise DatasetError(
+            f"`{root}` yields no (input, target) pair: it needs complete objects (with manifest.json) "
+            "and at least two lightings per view (or `input_lighting='area'`)."
+        )
+    return tuple(pairs)
+
+
+def _read_rgba(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """`[S, S, 3]` float32 sRGB composited on white and `[S, S]` alpha, both in [0, 1]."""
+    try:
+        with Image.open(path) as im:
+            rgba = im.convert("RGBA")
+            if rgba.size != (size, size):
+                rgba = rgba.resize((size, size), Image.Resampling.BICUBIC)
+            arr = np.asarray(rgba, np.float32) / 255.0
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"Could not read the render `{path}`: {exc}. Re-render it.") from exc
+    a = arr[..., 3:]
+    # straight alpha (gaffer-data PNGs) composited on the white background the model expects
+    return arr[..., :3] * a + (1.0 - a), arr[..., 3]
+
+
+def _read_mask(path: Path, size: int) -> np.ndarray:
+    try:
+        with Image.open(path) as im:
+            m = im.convert("L")
+            if m.size != (size, size):
+                m = m.resize((size, size), Image.Resampling.BICUBIC)
+            return np.asarray(m, np.float32) / 255.0
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"Could not read the mask `{path}`: {exc}. Re-render it.") from exc
+
+
+@functools.lru_cache(maxsize=8)
+def _augmented_envmap(
+    source: Path, flip: bool, yaw_step: int, num_steps: int, strength: float
+) -> Any:
+    from gaffer_envmap import AugmentSpec, EnvironmentMap
+    from gaffer_envmap.io import read_envmap
+
+    env = AugmentSpec(flip=flip, yaw_step=yaw_step, num_steps=num_steps).apply(
+        read_envmap(source, sanitize="zero")
+    )
+    if strength != 1.0:
+        env = EnvironmentMap(radiance_linear=np.asarray(env.radiance_linear) * np.float32(strength))
+    return env
+
+
+def pair_lighting(pairs: Sequence[EvalPair], size: int, compat: CompatMode) -> LightingMaps:
+    """Camera-frame LDR/HDR maps of each pair's target lighting, `[B, 3, size, size]`.
+
+    Raises:
+        DatasetError: when a map cannot be read or augmented.
+    """
+    ldr, hdr = [], []
+    for p in pairs:
+        lt = p.lighting
+        try:
+            env = _augmented_envmap(lt.source, lt.flip, lt.yaw_step, lt.num_steps, lt.strength)
+        except (OSError, ValueError) as exc:
+            raise DatasetError(
+                f"Could not read or augment the environment map `{lt.source}` of `{p.name}`: {exc}"
+            ) from exc
+        w2c = torch.tensor(lt.w2c_blender[None])  # [1, 3, 4], a copy (the pose is read-only)
+        maps = lighting_from_envmap(env, w2c, size=size, compat=compat)
+        ldr.append(maps.ldr)
+        hdr.append(maps.hdr)
+    return LightingMaps(ldr=torch.cat(ldr), hdr=torch.cat(hdr))
+
+
+def _to_chw(arrs: list[np.ndarray]) -> Tensor:
+    t = torch.from_numpy(np.stack(arrs))
+    return t.permute(0, 3, 1, 2).contiguous() if t.ndim == 4 else t[:, None].contiguous()
+
+
+def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
+    """Round to the 8-bit grid, as writing and re-reading a PNG would (the authors score PNGs)."""
+    return (images.clamp(0.0, 1.0) * 255.0).round() / 255.0
+
+
+def _batches(pairs: Sequence[EvalPair], size: int) -> Iterator[Sequence[EvalPair]]:
+    for lo in range(0, len(pairs), size):
+        yield pairs[lo : lo + size]
+
+
+def evaluate_dataset(
+    pipe: RelightPipeline,
+    pairs: Sequence[EvalPair],
+    config: EvaluationConfig | None = None,
+    *,
+    perceptual: PerceptualMetric | Literal["auto"] | None = "auto",
+    settings: dict[str, Any] | None = None,
+    on_batch: Callable[[int, int], None] | None = None,
+) -> DatasetEvaluation:
+    """Relight every pair and score it against its ground truth.
+
+    Args:
+        pipe: the relighting pipeline (its model's resolution is the working resolution).
+        pairs: from `dataset_pairs`.
+        config: sampling, seed, batch size, lighting encoding, prediction folder, progress bar.
+        perceptual: a loaded metric, None to skip it, or "auto" (shift-tolerant LPIPS when it loads,
+            otherwise the report says why not).
+        settings: extra entries for the report's settings (e.g. the checkpoint path).
+        on_batch: called as `on_batch(pairs_done, pairs_total)` after every batch.
+
+    Returns:
+        A `DatasetEvaluation`; its settings record the sampling, seed, dtype, device and pair count.
+
+    Raises:
+        DatasetError: on an empty `pairs` or an unreadable file.
+        NonFiniteOutputError: when sampling yields NaN/Inf (see `SamplingConfig.nonfinite`).
+    """
+    config = config or EvaluationConfig()
+    if not pairs:
+        raise DatasetError("`pairs` is empty; build them with `dataset_pairs(root)`.")
+    size = pipe.model.config.resolution
+    reason = None
+    if perceptual == "auto":
+        from gaffer_diffusion.errors import MetricUnavailableError
+
+        try:
+            perceptual = load_perceptual()
+        except MetricUnavailableError as exc:
+            perceptual, reason = None, str(exc)
+    bar = None
+    if config.progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(pairs), desc="evaluate", unit="pair")
+    start = time.perf_counter()
+    reports: list[MetricsReport] = []
+    done = 0
+    try:
+        for batch in _batches(pairs, config.batch_size):
+            inputs = [_read_rgba(p.input_image, size)[0] for p in batch]
+            targets, alphas = zip(*(_read_rgba(p.target_image, size) for p in batch), strict=True)
+            masks = [
+                a if p.mask is None else _read_mask(p.mask, size)
+                for p, a in zip(batch, alphas, strict=True)
+            ]
+            cond = RelightingConditions(
+                image=_to_chw(inputs), lighting=pair_lighting(batch, size, config.compat)
+            )
+            out = pipe(cond, config.sampling, seeds=[config.seed] * len(batch))
+            pred = quantize_8bit(out.images.float().cpu())
+            if config.predictions_dir is not None:
+                _save_predictions(config.predictions_dir, batch, pred)
+            report = evaluate_images(
+                pred,
+                _to_chw(list(targets)),
+                mask=_to_chw(masks),
+                names=[p.name for p in batch],
+                perceptual=perceptual,
+            )
+            if reason is not None:
+                report = _with_reason(report, reason)
+            reports.append(report)
+            done += len(batch)
+            if bar is not None:
+                bar.update(len(batch))
+            if on_batch is not None:
+                on_batch(done, len(pairs))
+    finally:
+        if bar is not None:
+            bar.close()
+    seconds = time.perf_counter() - start
+    s = config.sampling
+    info: dict[str, Any] = {
+        **(settings or {}),
+        "pairs": len(pairs),
+        "objects": len({p.object_id for p in pairs}),
+        "resolution": size,
+        "scheduler": s.scheduler,
+        "num_inference_steps": s.num_inference_steps,
+        "guidance_scale": s.guidance_scale,
+        "latent_mode": s.latent_mode,
+        "seed": config.seed,
+        "batch_size": config.batch_size,
+        "lighting_compat": config.compat,
+        "device": pipe.runtime.device,
+        "dtype": pipe.runtime.dtype,
+        "prediction": "8-bit quantised, full image on white (authors' protocol)",
+        "alignment": "pred_c * mean(gt_c) / mean(pred_c); 'whole image' and 'mask' means",
+    }
+    return DatasetEvaluation(report=combine_reports(reports), settings=info, seconds=seconds)
+
+
+def _with_reason(report: MetricsReport, reason: str) -> MetricsReport:
+    return replace(report, perceptual_unavailable_reason=reason)
+
+
+def _save_predictions(folder: Path, batch: Sequence[EvalPair], pred: Tensor) -> None:
+    for p, img in zip(batch, pred, strict=True):
+        path = Path(folder) / f"{p.name}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        arr = (img.permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
+        Image.fromarray(arr).save(path)

@@ -1,0 +1,194 @@
+"""Crash-safe training checkpoints: written to a temporary folder, fsynced, then renamed.
+
+Layout of `OUTPUT/checkpoints/checkpoint-00001000/`:
+
+- accelerate's `save_state` files: the UNet (`model.safetensors`), the optimiser, the fp16 grad scaler
+  and RNG states (for DeepSpeed/FSDP, accelerate's own sharded layout);
+- `ema_unet.safetensors`: the EMA weights (see `EMAModel`);
+- `train_state.json`: step, samples consumed, counters and the full training config.
+
+A checkpoint folder only ever appears complete: everything is written into `.tmp-checkpoint-*`, every
+file is fsynced, and one `os.replace` publishes it. `kill -9` at any moment leaves either the previous
+checkpoints untouched or a stale temporary folder, which the next run deletes. Old checkpoints are
+deleted only after a newer one is complete.
+"""
+
+import dataclasses
+import datetime
+import json
+import logging
+import os
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gaffer_diffusion._version import __version__
+from gaffer_diffusion.training.errors import ResumeError
+
+logger = logging.getLogger(__name__)
+
+STATE_NAME = "train_state.json"
+EMA_NAME = "ema_unet.safetensors"
+STATE_SCHEMA = "gaffer.train_checkpoint"
+STATE_SCHEMA_VERSION = "1.0"
+_NAME = re.compile(r"^checkpoint-(\d+)$")
+_TMP_PREFIX = ".tmp-checkpoint-"
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainState:
+    """Counters of a run, saved in every checkpoint.
+
+    Attributes:
+        step: optimiser steps taken.
+        samples_seen: samples consumed over all processes (the data stream's resume position).
+        skipped_steps: steps skipped for NaN/Inf loss or gradients.
+        consecutive_nonfinite: the current run of skipped steps.
+        skipped_samples: unreadable samples replaced by the data loader.
+        world_size: processes the run used (resuming with another count changes the data order).
+        config: the training config, as JSON.
+    """
+
+    step: int
+    samples_seen: int
+    skipped_steps: int = 0
+    consecutive_nonfinite: int = 0
+    skipped_samples: int = 0
+    world_size: int = 1
+    config: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The `train_state.json` body (with schema header)."""
+        return {
+            "schema": STATE_SCHEMA,
+            "schema_version": STATE_SCHEMA_VERSION,
+            "producer": {"package": "gaffer-diffusion", "version": __version__},
+            "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            **dataclasses.asdict(self),
+        }
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str) -> "TrainState":
+        """Parse `to_json` output.
+
+        Raises:
+            ResumeError: foreign schema, other MAJOR version or missing fields.
+        """
+        if data.get("schema") != STATE_SCHEMA:
+            raise ResumeError(f"{where} has schema {data.get('schema')!r}, expected {STATE_SCHEMA!r}.")
+        if str(data.get("schema_version", "")).split(".")[0] != STATE_SCHEMA_VERSION.split(".")[0]:
+            raise ResumeError(
+                f"{where} has schema_version {data.get('schema_version')!r}; this gaffer-diffusion "
+                f"reads {STATE_SCHEMA_VERSION.split('.')[0]}.x."
+            )
+        names = {f.name for f in dataclasses.fields(cls)}
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except TypeError as exc:
+            raise ResumeError(f"{where} is malformed: {exc}") from exc
+
+
+def checkpoint_name(step: int) -> str:
+    """`checkpoint-00001000` (zero-padded so names sort by step)."""
+    return f"checkpoint-{step:08d}"
+
+
+def list_checkpoints(root: str | Path) -> list[tuple[int, Path]]:
+    """Complete checkpoints under `root` as `(step, folder)`, oldest first."""
+    root = Path(root)
+    if not root.is_dir():
+        return []
+    out = []
+    for p in root.iterdir():
+        m = _NAME.match(p.name)
+        if m and p.is_dir() and (p / STATE_NAME).is_file():
+            out.append((int(m.group(1)), p))
+    return sorted(out)
+
+
+def latest_checkpoint(root: str | Path) -> Path | None:
+    """The newest complete checkpoint folder, or None."""
+    found = list_checkpoints(root)
+    return found[-1][1] if found else None
+
+
+def remove_stale_temporaries(root: str | Path) -> int:
+    """Delete `.tmp-checkpoint-*` folders left by killed writers; returns how many."""
+    root = Path(root)
+    if not root.is_dir():
+        return 0
+    stale = [p for p in root.iterdir() if p.name.startswith(_TMP_PREFIX)]
+    for p in stale:
+        shutil.rmtree(p, ignore_errors=True)
+    return len(stale)
+
+
+def temporary_dir(root: str | Path, step: int) -> Path:
+    """The folder a checkpoint of `step` is written into before `publish`."""
+    return Path(root) / f"{_TMP_PREFIX}{step:08d}"
+
+
+def _fsync_tree(folder: Path) -> None:
+    for dirpath, _, files in os.walk(folder):
+        for name in files:
+            fd = os.open(os.path.join(dirpath, name), os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        fd = os.open(dirpath, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_state(folder: Path, state: TrainState) -> None:
+    """Write `train_state.json` into a (temporary) checkpoint folder."""
+    (folder / STATE_NAME).write_text(json.dumps(state.to_json(), indent=2), encoding="utf-8")
+
+
+def publish(tmp: Path, root: str | Path, step: int, keep: int) -> Path:
+    """fsync `tmp`, rename it to `checkpoint-{step}`, then delete all but the newest `keep`.
+
+    Returns:
+        The published folder.
+    """
+    root = Path(root)
+    final = root / checkpoint_name(step)
+    _fsync_tree(tmp)
+    if final.exists():  # the same step saved again (e.g. SIGTERM right after a periodic save)
+        old = root / f"{_TMP_PREFIX}old-{step:08d}"
+        shutil.rmtree(old, ignore_errors=True)
+        os.replace(final, old)
+        os.replace(tmp, final)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, final)
+    fd = os.open(root, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    for _, old_ckpt in list_checkpoints(root)[:-keep]:
+        shutil.rmtree(old_ckpt, ignore_errors=True)
+        logger.info("deleted old checkpoint %s", old_ckpt)
+    return final
+
+
+def read_state(folder: str | Path) -> TrainState:
+    """The `TrainState` of a checkpoint folder.
+
+    Raises:
+        ResumeError: the folder is not a complete checkpoint.
+    """
+    path = Path(folder) / STATE_NAME
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ResumeError(
+            f"{path} is missing or unreadable ({exc}); pass a complete `checkpoint-*` folder."
+        ) from exc
+    return TrainState.from_json(data, str(path))

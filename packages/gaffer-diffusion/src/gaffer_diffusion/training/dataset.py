@@ -1,0 +1,485 @@
+"""Training samples from gaffer-data renders (paper §3.1, official implementation §3).
+
+One sample = one object view: an input image under one lighting (with probability `area_light_prob`
+the area-light render, otherwise an environment-map render of the same view) and
+`targets_per_sample` renders of the same view under OTHER environment-map draws, with those draws'
+environment maps (augmented exactly as rendered, resized to `[envmap_height, 2 envmap_height]`) and the
+view's Blender world-to-camera matrix. The lighting conditioning (rotation into the camera frame, LDR/HDR
+split) is NOT computed here: `encode_batch_lighting` does it for the whole batch on the training device,
+with no PNG round trip.
+
+Images are the renders' 8-bit sRGB PNGs (straight alpha), composited on white and resized (bilinear,
+antialiased) to the model resolution, as the authors preprocess them.
+
+Determinism: an item depends only on `(seed, key)`; `KeySampler` yields keys
+`epoch * len(dataset) + index` from a seeded permutation per epoch and can start at any position, so a
+resumed run sees exactly the samples an uninterrupted run would have seen.
+
+Robustness: an object whose manifest or cameras cannot be read is left out at construction; an item
+whose files are missing or corrupt is replaced by another one (drawn from the same seeded generator),
+and every such event is counted in the batch (`TrainBatch.skipped`) and logged by the training loop.
+"""
+
+import hashlib
+import logging
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from PIL import Image
+from torch import Tensor
+
+from gaffer_data import GafferDataError, open_dataset, read_object
+from gaffer_data.dataset import EnvmapRef, RenderedObject, ViewRecord
+from gaffer_diffusion.training.config import DataConfig, LightingCompat
+from gaffer_diffusion.training.errors import DataError
+
+logger = logging.getLogger(__name__)
+
+_ENVMAP_SUFFIXES = (".exr", ".hdr")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainItem:
+    """One training sample (channels-first images in [0, 1], sRGB, on white).
+
+    Attributes:
+        input_image: `[3, H, W]` the input view.
+        target_images: `[T, 3, H, W]` the same view under the T target lightings.
+        envmaps: `[T, He, We, 3]` linear radiance of the target lightings (Blender world frame).
+        w2c_blender: `[3, 4]` world-to-camera matrix of the view (Blender camera axes).
+        input_is_area: the input is the area-light render.
+        object_id: the object.
+        view_index: the view.
+        skipped: unreadable items replaced before this one was found.
+        skipped_files: the files that failed (one per replaced item).
+    """
+
+    input_image: Float[Tensor, "3 H W"]
+    target_images: Float[Tensor, "T 3 H W"]
+    envmaps: Float[Tensor, "T He We 3"]
+    w2c_blender: Float[Tensor, "3 4"]
+    input_is_area: bool
+    object_id: str
+    view_index: int
+    skipped: int = 0
+    skipped_files: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, kw_only=True)
+class TrainBatch:
+    """A collated batch of `TrainItem`s.
+
+    Attributes:
+        input_images: `[B, 3, H, W]`.
+        target_images: `[B, T, 3, H, W]`.
+        envmaps: `[B, T, He, We, 3]` linear radiance.
+        w2c_blender: `[B, 3, 4]`.
+        input_is_area: `[B]` bool.
+        skipped: unreadable items replaced while loading this batch.
+        skipped_files: their files.
+    """
+
+    input_images: Float[Tensor, "B 3 H W"]
+    target_images: Float[Tensor, "B T 3 H W"]
+    envmaps: Float[Tensor, "B T He We 3"]
+    w2c_blender: Float[Tensor, "B 3 4"]
+    input_is_area: Tensor
+    skipped: int = 0
+    skipped_files: tuple[str, ...] = ()
+
+    @property
+    def batch_size(self) -> int:
+        """B."""
+        return int(self.input_images.shape[0])
+
+    @property
+    def targets_per_sample(self) -> int:
+        """T."""
+        return int(self.target_images.shape[1])
+
+    def pin_memory(self) -> "TrainBatch":
+        """Page-locked copies (DataLoader `pin_memory=True` calls this)."""
+        return TrainBatch(
+            input_images=self.input_images.pin_memory(),
+            target_images=self.target_images.pin_memory(),
+            envmaps=self.envmaps.pin_memory(),
+            w2c_blender=self.w2c_blender.pin_memory(),
+            input_is_area=self.input_is_area,
+            skipped=self.skipped,
+            skipped_files=self.skipped_files,
+        )
+
+
+def collate_items(items: Sequence[TrainItem]) -> TrainBatch:
+    """Stack `TrainItem`s into a `TrainBatch` (the DataLoader's `collate_fn`)."""
+    return TrainBatch(
+        input_images=torch.stack([i.input_image for i in items]),
+        target_images=torch.stack([i.target_images for i in items]),
+        envmaps=torch.stack([i.envmaps for i in items]),
+        w2c_blender=torch.stack([i.w2c_blender for i in items]),
+        input_is_area=torch.tensor([i.input_is_area for i in items]),
+        skipped=sum(i.skipped for i in items),
+        skipped_files=tuple(f for i in items for f in i.skipped_files),
+    )
+
+
+def split_object_ids(
+    object_ids: Sequence[str], num_val: int, *, salt: str = "gaffer-val"
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """Deterministic (train, val) split: the `num_val` ids with the smallest sha256(salt + id).
+
+    Independent of the order and of ids added later (an object never moves from train to val).
+    At least one object always stays in the training split.
+    """
+    ranked = sorted(object_ids, key=lambda i: hashlib.sha256(f"{salt}:{i}".encode()).hexdigest())
+    n_val = min(num_val, max(len(ranked) - 1, 0))
+    val = set(ranked[:n_val])
+    return (
+        tuple(i for i in sorted(object_ids) if i not in val),
+        tuple(i for i in sorted(object_ids) if i in val),
+    )
+
+
+def load_image_on_white(path: Path, size: int, alpha_path: Path | None = None) -> Float[Tensor, "3 S S"]:
+    """An sRGB PNG with straight alpha composited on white, resized to `size` (bilinear, antialiased).
+
+    Args:
+        path: RGBA (or RGB) 8-bit image.
+        size: output side length.
+        alpha_path: a separate 8-bit mask used when the image has no alpha channel.
+
+    Returns:
+        `[3, size, size]` float32 in [0, 1].
+
+    Raises:
+        OSError: unreadable or truncated file (PIL's errors).
+        ValueError: unusable image data.
+    """
+    with Image.open(path) as im:
+        im.load()
+        rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
+        has_alpha = im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info
+    rgb, alpha = rgba[..., :3], rgba[..., 3:4]
+    if not has_alpha and alpha_path is not None:
+        with Image.open(alpha_path) as m:
+            m.load()
+            alpha = np.asarray(m.convert("L"), dtype=np.float32)[..., None] / 255.0
+        if alpha.shape[:2] != rgb.shape[:2]:
+            raise ValueError(f"mask {alpha_path} has size {alpha.shape[:2]}, image {rgb.shape[:2]}")
+    # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
+    out = torch.from_numpy(rgb * alpha + (1.0 - alpha)).permute(2, 0, 1)  # [3, h, w]
+    if tuple(out.shape[1:]) != (size, size):
+        out = F.interpolate(
+            out[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+        )[0]
+    return out.clamp(0.0, 1.0).contiguous()
+
+
+class _EnvmapCache:
+    """Per-process LRU of augmented, resized environment maps (`[h, 2h, 3]` float32)."""
+
+    def __init__(self, capacity: int, height: int, max_radiance: float, dirs: Sequence[Path]):
+        self.capacity = max(capacity, 1)
+        self.height = height
+        self.max_radiance = max_radiance
+        self.dirs = tuple(dirs)
+        self._items: OrderedDict[tuple[str, bool, int, int], np.ndarray] = OrderedDict()
+
+    def resolve(self, ref: EnvmapRef, dataset_root: Path) -> Path:
+        candidates = [Path(ref.source), dataset_root / ref.source, dataset_root.parent / ref.source]
+        for d in self.dirs:
+            candidates += [d / f"{ref.name}{s}" for s in _ENVMAP_SUFFIXES]
+            candidates.append(d / Path(ref.source).name)
+        for c in candidates:
+            if c.is_file():
+                return c
+        raise FileNotFoundError(
+            f"environment map {ref.name!r} (recorded source {ref.source}) not found; add its folder to "
+            "`data.envmap_dirs`"
+        )
+
+    def get(self, ref: EnvmapRef, dataset_root: Path) -> np.ndarray:
+        key = (ref.source, ref.flip, ref.yaw_step, ref.num_steps)
+        hit = self._items.get(key)
+        if hit is not None:
+            self._items.move_to_end(key)
+            return hit
+        from gaffer_envmap.augment import AugmentSpec
+        from gaffer_envmap.io import read_envmap
+        from gaffer_envmap.resample import resize_conservative
+
+        env = read_envmap(self.resolve(ref, dataset_root), sanitize="clamp")
+        # the augmentation the renderer applied, at the source resolution (exact pixel rolls)
+        env = AugmentSpec(flip=ref.flip, yaw_step=ref.yaw_step, num_steps=ref.num_steps).apply(env)
+        if env.height != self.height:
+            env = resize_conservative(env, self.height)
+        rad = np.asarray(env.radiance_linear, dtype=np.float32)
+        if float(rad.max(initial=0.0)) > self.max_radiance:
+            # an extreme sun would overflow float32 in the HDR normaliser log1p(10 E)
+            logger.warning(
+                "environment map %s has radiance up to %.3g; clamped to `data.max_radiance` %.3g",
+                ref.source,
+                float(rad.max()),
+                self.max_radiance,
+            )
+            rad = np.minimum(rad, self.max_radiance)
+        rad = np.ascontiguousarray(rad)
+        rad.flags.writeable = False
+        self._items[key] = rad
+        if len(self._items) > self.capacity:
+            self._items.popitem(last=False)
+        return rad
+
+
+@dataclass(frozen=True, kw_only=True)
+class _ViewEntry:
+    object_index: int
+    view: ViewRecord
+    w2c_blender: np.ndarray
+
+
+class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
+    """Samples of one or more rendered datasets, indexed by (object, view).
+
+    Args:
+        roots: `gaffer-data render` output folders.
+        config: sampling settings (`targets_per_sample`, `area_light_prob`, envmap size, ...).
+        resolution: model image size.
+        seed: item seed; item `key` is drawn from `np.random.default_rng([seed, key])`.
+        include: only these object ids (None: all).
+        exclude: never these object ids.
+
+    Raises:
+        DataError: no usable view in the given folders.
+
+    Example:
+        >>> ds = RelightTrainDataset(["renders/"], DataConfig(root=Path("renders/")), 64)  # doctest: +SKIP
+        >>> item = ds[0]  # doctest: +SKIP
+        >>> item.target_images.shape  # doctest: +SKIP
+        torch.Size([2, 3, 64, 64])
+    """
+
+    def __init__(
+        self,
+        roots: Sequence[str | Path],
+        config: DataConfig,
+        resolution: int,
+        *,
+        seed: int = 0,
+        include: Sequence[str] | None = None,
+        exclude: Sequence[str] = (),
+    ) -> None:
+        self.config = config
+        self.resolution = int(resolution)
+        self.seed = int(seed)
+        self.objects: list[RenderedObject] = []
+        self.entries: list[_ViewEntry] = []
+        self.skipped_objects: list[str] = []
+        self.skipped_views = 0
+        wanted = None if include is None else set(include)
+        t = config.targets_per_sample
+        for root in roots:
+            ds = open_dataset(root)
+            for oid in ds.object_ids:
+                if (wanted is not None and oid not in wanted) or oid in exclude:
+                    continue
+                try:
+                    obj = read_object(Path(root) / "objects" / oid)
+                    poses = obj.poses()
+                except (GafferDataError, OSError, ValueError) as exc:
+                    self.skipped_objects.append(f"{oid}: {exc}")
+                    continue
+                oi = len(self.objects)
+                self.objects.append(obj)
+                for view in obj.views:
+                    n_lit = len(view.lit)
+                    if n_lit >= t + 1 or (view.area is not None and n_lit >= t):
+                        w2c = np.asarray(poses.w2c_blender[view.index], dtype=np.float32)
+                        self.entries.append(_ViewEntry(object_index=oi, view=view, w2c_blender=w2c))
+                    else:
+                        self.skipped_views += 1
+        if self.skipped_objects:
+            logger.warning(
+                "skipped %d unreadable object(s): %s",
+                len(self.skipped_objects),
+                "; ".join(self.skipped_objects[:5]),
+            )
+        if self.skipped_views:
+            logger.warning(
+                "skipped %d view(s) with fewer than %d environment-map renders (+ an area render)",
+                self.skipped_views,
+                t + 1,
+            )
+        if not self.entries:
+            raise DataError(
+                f"No usable view in {[str(r) for r in roots]}: need complete objects (with "
+                f"manifest.json) whose views have >= {t + 1} environment-map renders, or {t} plus an "
+                "area-light render. Render with `gaffer-data render --lightings N` (N > "
+                "`data.targets_per_sample`) or lower `data.targets_per_sample`."
+            )
+        self._cache = _EnvmapCache(
+            config.envmap_cache_size, config.envmap_height, config.max_radiance, config.envmap_dirs
+        )
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    @property
+    def object_ids(self) -> tuple[str, ...]:
+        """Ids of the objects that contribute views."""
+        return tuple(o.object_id for o in self.objects)
+
+    def __getitem__(self, key: int) -> TrainItem:
+        """The item for `key` (any non-negative int; `key % len(self)` picks the view).
+
+        Raises:
+            DataError: `data.max_load_retries` replacements in a row were unreadable too.
+        """
+        rng = np.random.default_rng([self.seed, int(key)])
+        index = int(key) % len(self.entries)
+        failed: list[str] = []
+        for _ in range(self.config.max_load_retries + 1):
+            try:
+                item = self._load(self.entries[index], rng)
+            except (OSError, ValueError, GafferDataError) as exc:
+                failed.append(f"{self._describe(index)}: {exc}")
+                logger.warning("skipping unreadable sample %s", failed[-1])
+                index = int(rng.integers(len(self.entries)))
+                continue
+            if failed:
+                return TrainItem(
+                    **{
+                        f: getattr(item, f)
+                        for f in item.__dataclass_fields__
+                        if f not in ("skipped", "skipped_files")
+                    },
+                    skipped=len(failed),
+                    skipped_files=tuple(failed),
+                )
+            return item
+        raise DataError(
+            f"{len(failed)} samples in a row could not be read (last: {failed[-1]}). Check the "
+            "dataset with `gaffer-data info ROOT --verify` and re-render the broken objects."
+        )
+
+    def _describe(self, index: int) -> str:
+        e = self.entries[index]
+        return f"{self.objects[e.object_index].object_id}/view {e.view.index}"
+
+    def _load(self, entry: _ViewEntry, rng: np.random.Generator) -> TrainItem:
+        obj = self.objects[entry.object_index]
+        view = entry.view
+        t = self.config.targets_per_sample
+        lit = view.lit
+        # Neural Gaffer §3.1: 10% of inputs are the area-light render, else another envmap render
+        draw = float(rng.random())
+        use_area = view.area is not None and (draw < self.config.area_light_prob or len(lit) < t + 1)
+        order = rng.permutation(len(lit))
+        targets = [lit[i] for i in order[:t]]
+        alpha = None if view.alpha is None else obj.path(view.alpha)
+        size = self.resolution
+        if use_area and view.area is not None:
+            input_image = load_image_on_white(obj.path(view.area.png), size, alpha)
+        else:
+            input_image = load_image_on_white(obj.path(lit[int(order[t])].png), size, alpha)
+        target_images = torch.stack([load_image_on_white(obj.path(li.png), size, alpha) for li in targets])
+        envmaps = torch.stack(
+            [torch.from_numpy(self._cache.get(li.envmap, obj.root.parent.parent).copy()) for li in targets]
+        )
+        return TrainItem(
+            input_image=input_image,
+            target_images=target_images,
+            envmaps=envmaps,
+            w2c_blender=torch.from_numpy(entry.w2c_blender.copy()),
+            input_is_area=bool(use_area),
+            object_id=obj.object_id,
+            view_index=view.index,
+        )
+
+
+class KeySampler(torch.utils.data.Sampler[int]):
+    """An endless, resumable stream of item keys, sharded over processes.
+
+    Position p (counted over all processes) maps to `key = epoch * n + perm_epoch[p % n]` with
+    `epoch = p // n` and a permutation seeded by `(seed, epoch)`. Process `rank` of `world_size` takes
+    positions `start + rank, start + rank + world_size, ...`.
+
+    Args:
+        num_items: n, the dataset length.
+        seed: permutation seed.
+        start: global position to start from (samples already consumed, for resuming).
+        rank: this process's index.
+        world_size: number of processes.
+        shuffle: permute each epoch (False: identity order).
+    """
+
+    def __init__(
+        self,
+        num_items: int,
+        *,
+        seed: int = 0,
+        start: int = 0,
+        rank: int = 0,
+        world_size: int = 1,
+        shuffle: bool = True,
+    ) -> None:
+        if num_items < 1 or not 0 <= rank < world_size or start < 0:
+            raise DataError(
+                f"`KeySampler` got num_items={num_items}, rank={rank}, world_size={world_size}, "
+                f"start={start}; need num_items >= 1, 0 <= rank < world_size, start >= 0."
+            )
+        self.num_items = num_items
+        self.seed = seed
+        self.start = start
+        self.rank = rank
+        self.world_size = world_size
+        self.shuffle = shuffle
+
+    def _perm(self, epoch: int) -> Tensor:
+        if not self.shuffle:
+            return torch.arange(self.num_items)
+        g = torch.Generator().manual_seed(self.seed * 1_000_003 + epoch)
+        return torch.randperm(self.num_items, generator=g)
+
+    def __iter__(self) -> Iterator[int]:
+        p = self.start + self.rank
+        epoch, perm = -1, torch.arange(0)
+        while True:
+            e = p // self.num_items
+            if e != epoch:
+                epoch, perm = e, self._perm(e)
+            yield int(e * self.num_items + int(perm[p % self.num_items]))
+            p += self.world_size
+
+
+def encode_batch_lighting(
+    envmaps: Float[Tensor, "N He We 3"],
+    w2c_blender: Float[Tensor, "N 3 4"],
+    *,
+    size: int,
+    compat: LightingCompat,
+    device: torch.device | str | None = None,
+) -> tuple[Float[Tensor, "N 3 S S"], Float[Tensor, "N 3 S S"]]:
+    """Camera-frame LDR and HDR maps of N (map, pose) pairs in one batched gaffer-envmap call.
+
+    Neural Gaffer §3.2: each map is rotated into its view's camera frame and split into E_L / E_H.
+
+    Returns:
+        `(ldr, hdr)`, each `[N, 3, size, size]` float32 in [0, 1] on `device`.
+    """
+    from gaffer_envmap.encode import encode_lighting
+
+    enc = encode_lighting(
+        envmaps.to(device=device, dtype=torch.float32),
+        w2c_blender.detach().double().cpu(),
+        size=size,
+        compat=compat,
+        device=device,
+    )
+    return enc.ldr.to(device=device, dtype=torch.float32), enc.hdr.to(device=device, dtype=torch.float32)

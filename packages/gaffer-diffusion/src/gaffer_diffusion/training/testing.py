@@ -1,0 +1,177 @@
+"""Synthetic rendered datasets for tests: gaffer-data's on-disk layout without Blender.
+
+Each object is a flat disc of one albedo; its image under an environment map is the disc shaded by the
+map's mean colour (a crude but learnable "relighting"), composited with a straight alpha on a
+transparent film. Manifests are written with gaffer-data's public schema and serialiser, so
+`gaffer_data.open_dataset` reads them like real renders.
+"""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from gaffer_data import RenderConfig
+from gaffer_data.dataset import (
+    DATASET_SCHEMA,
+    DATASET_SCHEMA_VERSION,
+    AreaLightImage,
+    AreaLightSample,
+    CameraSample,
+    EnvmapRef,
+    Intrinsics,
+    LitImage,
+    Normalization,
+    ObjectPlan,
+    ViewRecord,
+)
+from gaffer_data.dataset.manifest import object_manifest_json, producer, utc_now
+
+
+def write_envmaps(
+    folder: Path, count: int = 4, height: int = 8, *, seed: int = 0, peak: float | None = None
+) -> list[Path]:
+    """`count` random `[height, 2 height]` EXR maps (one with a bright sun of `peak` if given)."""
+    from gaffer_envmap.io import write_envmap
+
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k in range(count):
+        colour = rng.uniform(0.1, 1.5, size=3).astype(np.float32)
+        env = np.broadcast_to(colour, (height, 2 * height, 3)).copy()
+        env[: height // 2] *= 1.5  # brighter sky
+        if peak is not None and k == 0:
+            env[1, 3] = peak
+        p = folder / f"env{k}.exr"
+        write_envmap(p, env)
+        paths.append(p)
+    return paths
+
+
+def _disc_rgba(size: int, albedo: np.ndarray, light: np.ndarray) -> np.ndarray:
+    yy, xx = np.mgrid[0:size, 0:size]
+    r = np.hypot(xx - size / 2 + 0.5, yy - size / 2 + 0.5) / (size / 2)
+    alpha = np.clip((0.8 - r) * size / 2, 0.0, 1.0)
+    shade = np.clip(albedo * light, 0.0, 1.0) ** (1 / 2.2)
+    rgb = np.broadcast_to(shade, (size, size, 3)) * (0.6 + 0.4 * (1 - r[..., None]))
+    return np.concatenate([rgb, alpha[..., None]], axis=-1)
+
+
+def _save_png(path: Path, rgba: np.ndarray) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray((np.clip(rgba, 0, 1) * 255).round().astype(np.uint8), "RGBA").save(path)
+
+
+def write_synthetic_dataset(
+    root: Path,
+    *,
+    objects: int = 3,
+    views: int = 2,
+    lightings: int = 3,
+    size: int = 32,
+    envmaps: int = 4,
+    envmap_height: int = 8,
+    area: bool = True,
+    seed: int = 0,
+    sun_peak: float | None = None,
+) -> Path:
+    """Write a dataset folder readable by `gaffer_data.open_dataset`; returns `root`.
+
+    Args:
+        root: dataset folder (its `envmaps/` sub-folder holds the maps).
+        objects: number of objects (ids `obj0`, `obj1`, ...).
+        views: views per object.
+        lightings: environment-map renders per view.
+        size: image side in pixels.
+        envmaps: size of the lighting pool.
+        envmap_height: pool map height (width 2x).
+        area: also write the area-light render of each view.
+        seed: seed of albedos, draws and poses.
+        sun_peak: radiance of a one-pixel sun in the first map (stability tests).
+    """
+    from gaffer_envmap.io import read_envmap
+    from gaffer_envmap.poses import orbit_w2c_blender
+
+    rng = np.random.default_rng(seed)
+    root.mkdir(parents=True, exist_ok=True)
+    pool = write_envmaps(root / "envmaps", envmaps, envmap_height, seed=seed, peak=sun_peak)
+    means = [np.minimum(read_envmap(p, sanitize="clamp").radiance_linear.mean(axis=(0, 1)), 4.0) for p in pool]
+    cfg = RenderConfig(views=views, lightings=lightings, resolution=size, samples=1, area_light_render=area)
+    ids = []
+    for o in range(objects):
+        oid = f"obj{o}"
+        ids.append(oid)
+        folder = root / "objects" / oid
+        albedo = rng.uniform(0.2, 0.9, size=3)
+        view_records = []
+        w2cs, c2ws = [], []
+        for v in range(views):
+            az, el = float(rng.uniform(0, 360)), float(rng.uniform(-30, 60))
+            pose = orbit_w2c_blender(az, el, 2.0)
+            w2cs.append(pose.matrix)
+            c2ws.append(pose.to_c2w_opencv().matrix)
+            lits = []
+            for li in range(lightings):
+                k = int(rng.integers(len(pool)))
+                rel = f"lit/{v:03d}_{li:03d}"
+                _save_png(folder / f"{rel}.png", _disc_rgba(size, albedo, means[k]))
+                ref = EnvmapRef(
+                    name=pool[k].stem,
+                    source=str(pool[k]),
+                    source_sha256="0" * 64,
+                    flip=bool(rng.integers(2)),
+                    yaw_step=int(rng.integers(4)),
+                    num_steps=4,
+                )
+                lits.append(LitImage(lighting_index=li, envmap=ref, exr=f"{rel}.exr", png=f"{rel}.png"))
+            area_rec = None
+            if area:
+                _save_png(folder / f"area/{v:03d}.png", _disc_rgba(size, albedo, np.full(3, 0.7)))
+                area_rec = AreaLightImage(
+                    light=AreaLightSample(location=(0.0, 0.0, 1.0), energy=400.0, scale=100.0, world_grey=0.35),
+                    exr=f"area/{v:03d}.exr",
+                    png=f"area/{v:03d}.png",
+                    normal=f"normal/{v:03d}.exr",
+                    albedo=f"albedo/{v:03d}.exr",
+                    depth=f"depth/{v:03d}.exr",
+                )
+            view_records.append(
+                ViewRecord(
+                    index=v,
+                    camera=CameraSample(elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0)),
+                    lit=tuple(lits),
+                    area=area_rec,
+                    alpha=None,
+                )
+            )
+        k_mat = np.array([[size, 0, size / 2], [0, size, size / 2], [0, 0, 1]], np.float64)
+        np.savez(folder / "cameras.npz", w2c_blender=np.stack(w2cs), c2w_opencv=np.stack(c2ws), intrinsics=k_mat)
+        plan = ObjectPlan(
+            object_id=oid,
+            source=f"/synthetic/{oid}.glb",
+            views=tuple(view_records),
+            intrinsics=Intrinsics(width=size, height=size, fx=size, fy=size, cx=size / 2, cy=size / 2),
+            config=cfg,
+        )
+        manifest = object_manifest_json(
+            plan, source_sha256="0" * 64, normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)), files=[]
+        )
+        (folder / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+    (root / "dataset.json").write_text(
+        json.dumps(
+            {
+                "schema": DATASET_SCHEMA,
+                "schema_version": DATASET_SCHEMA_VERSION,
+                "producer": dataclasses.asdict(producer()),
+                "created_utc": utc_now(),
+                "config": cfg.to_dict(),
+                "objects": ids,
+                "failures": [],
+            }
+        ),
+        encoding="utf-8",
+    )
+    return root

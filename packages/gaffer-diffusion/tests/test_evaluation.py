@@ -1,0 +1,291 @@
+"""`evaluate --dataset`: a tiny random model over a tiny gaffer-data dataset written without Blender."""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+pytest.importorskip("gaffer_data")
+pytest.importorskip("gaffer_envmap.encode")
+
+from gaffer_diffusion.cli import main
+from gaffer_diffusion.errors import ConfigError, DatasetError
+from gaffer_diffusion.evaluation import (
+    EvaluationConfig,
+    dataset_pairs,
+    evaluate_dataset,
+    pair_lighting,
+)
+from gaffer_diffusion.metrics import combine_reports, evaluate_images
+from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
+from gaffer_diffusion.testing import tiny_model
+
+RES = 32  # renders at half the tiny model's 64 px: evaluation resizes them
+
+
+def _write_envmaps(folder: Path) -> dict[str, Path]:
+    from gaffer_envmap import EnvironmentMap, write_envmap
+
+    folder.mkdir(parents=True, exist_ok=True)
+    maps = {"warm": (1.0, 0.6, 0.3), "cool": (0.2, 0.4, 1.0)}
+    out = {}
+    for k, (name, rgb) in enumerate(maps.items()):
+        env = np.broadcast_to(np.asarray(rgb, np.float32), (8, 16, 3)).copy()
+        env[2, 3 + 5 * k] = 50.0  # a small sun, at a different place per map
+        write_envmap(folder / f"{name}.exr", EnvironmentMap(radiance_linear=env))
+        out[name] = folder / f"{name}.exr"
+    return out
+
+
+def write_tiny_dataset(root: Path, envmaps: dict[str, Path], *, views: int = 2) -> Path:
+    """A gaffer-data dataset with one object, `views` views x 3 lightings of flat-shaded PNGs.
+
+    Written through gaffer-data's schema and manifest writer (no Blender): the images are a disc whose
+    colour is the map's colour, so lighting changes are visible and the reader sees a complete object.
+    """
+    from gaffer_data.dataset import sha256_file
+    from gaffer_data.dataset.manifest import object_manifest_json
+    from gaffer_data.dataset.schema import (
+        CameraSample,
+        EnvmapRef,
+        FileRecord,
+        Intrinsics,
+        LitImage,
+        Normalization,
+        ObjectPlan,
+        ViewRecord,
+    )
+    from gaffer_data.testing import tiny_config
+    from gaffer_envmap.poses import orbit_w2c_blender
+
+    config = tiny_config(views=views, lightings=3, resolution=RES)
+    obj = root / "objects" / "disc"
+    (obj / "lit").mkdir(parents=True)
+    (obj / "alpha").mkdir()
+    yy, xx = np.mgrid[:RES, :RES]
+    alpha = (((yy - RES / 2) ** 2 + (xx - RES / 2) ** 2) < (RES / 3) ** 2).astype(np.uint8) * 255
+    names = list(envmaps)
+    view_records, w2c, files = [], [], []
+    for v in range(views):
+        az, el = 40.0 * v, 15.0
+        w2c.append(orbit_w2c_blender(az, el, 2.0).matrix)
+        lit = []
+        for li in range(3):
+            name = names[li % len(names)]
+            ref = EnvmapRef(
+                name=name,
+                source=str(envmaps[name]),
+                source_sha256=sha256_file(envmaps[name]),
+                flip=li == 2,
+                yaw_step=li,
+                num_steps=4,
+            )
+            rgba = np.zeros((RES, RES, 4), np.uint8)
+            rgba[..., :3] = (np.array([60, 120, 200]) + 40 * li + 10 * v) % 256
+            rgba[..., 3] = alpha
+            png = f"lit/{v:03d}_{li:03d}.png"
+            Image.fromarray(rgba).save(obj / png)
+            lit.append(LitImage(lighting_index=li, envmap=ref, exr=png, png=png))
+        Image.fromarray(alpha).save(obj / f"alpha/{v:03d}.png")
+        cam = CameraSample(elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0))
+        view_records.append(
+            ViewRecord(index=v, camera=cam, lit=tuple(lit), area=None, alpha=f"alpha/{v:03d}.png")
+        )
+    w2c_arr = np.stack(w2c)
+    c2w_cv = np.stack([np.linalg.inv(np.vstack([m, [0, 0, 0, 1]])) for m in w2c_arr])
+    c2w_cv = c2w_cv @ np.diag([1.0, -1.0, -1.0, 1.0])
+    k = np.array([[35.0, 0, RES / 2], [0, 35.0, RES / 2], [0, 0, 1]])
+    with open(obj / "cameras.npz", "wb") as fh:
+        np.savez(fh, w2c_blender=w2c_arr, c2w_opencv=c2w_cv, intrinsics=k)
+    for p in sorted(obj.rglob("*")):
+        if p.is_file():
+            rel = p.relative_to(obj).as_posix()
+            kind = "cameras" if rel.endswith(".npz") else "alpha" if "alpha" in rel else "lit_png"
+            files.append(
+                FileRecord(
+                    path=rel,
+                    sha256=sha256_file(p),
+                    kind=kind,
+                    dtype="npz" if kind == "cameras" else "uint8",
+                    shape=(),
+                    color_space="data" if kind != "lit_png" else "srgb",
+                )
+            )
+    plan = ObjectPlan(
+        object_id="disc",
+        source="disc.obj",
+        views=tuple(view_records),
+        intrinsics=Intrinsics(width=RES, height=RES, fx=35.0, fy=35.0, cx=RES / 2, cy=RES / 2),
+        config=config,
+    )
+    body = object_manifest_json(
+        plan,
+        source_sha256="0" * 64,
+        normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
+        files=files,
+    )
+    (obj / "manifest.json").write_text(json.dumps(body))
+    return root
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> tuple[Path, Path]:
+    base = tmp_path_factory.mktemp("evalds")
+    envmaps = _write_envmaps(base / "envmaps")
+    return write_tiny_dataset(base / "render", envmaps), base / "envmaps"
+
+
+def test_pairs_cover_every_target_of_every_view(dataset) -> None:
+    root, _ = dataset
+    pairs = dataset_pairs(root)
+    assert [p.name for p in pairs] == [
+        "disc/000_000_to_001",
+        "disc/000_000_to_002",
+        "disc/001_000_to_001",
+        "disc/001_000_to_002",
+    ]
+    assert (
+        pairs[0].input_image.name == "000_000.png" and pairs[0].target_image.name == "000_001.png"
+    )
+    assert pairs[1].lighting.flip and pairs[1].lighting.yaw_step == 2
+    assert pairs[2].lighting.w2c_blender.shape == (3, 4)
+    assert len(dataset_pairs(root, input_lighting=2, limit=3)) == 3
+    assert dataset_pairs(root, input_lighting=1)[0].name == "disc/000_001_to_000"
+
+
+def test_pairs_errors_name_the_fix(dataset, tmp_path) -> None:
+    root, envmaps = dataset
+    with pytest.raises(DatasetError, match="no lighting 7"):
+        dataset_pairs(root, input_lighting=7)
+    with pytest.raises(DatasetError, match="area-light"):
+        dataset_pairs(root, input_lighting="area")
+    with pytest.raises(ConfigError, match="input_lighting"):
+        dataset_pairs(root, input_lighting=-1)
+    with pytest.raises(DatasetError, match="no \\(input, target\\) pair"):
+        dataset_pairs(tmp_path)
+    # the maps moved: the recorded paths fail, `envmap_dirs` finds them by name
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for p in envmaps.iterdir():
+        (moved / p.name).write_bytes(p.read_bytes())
+    renamed = tmp_path / "ds"
+    import shutil
+
+    shutil.copytree(root, renamed)
+    manifest = renamed / "objects" / "disc" / "manifest.json"
+    manifest.write_text(manifest.read_text().replace(str(envmaps), str(tmp_path / "gone")))
+    with pytest.raises(DatasetError, match="--envmaps"):
+        dataset_pairs(renamed)
+    pairs = dataset_pairs(renamed, envmap_dirs=[moved])
+    assert pairs[0].lighting.source.parent == moved
+
+
+def test_pair_lighting_is_the_rotated_augmented_map(dataset) -> None:
+    from gaffer_envmap import AugmentSpec
+    from gaffer_envmap.encode import encode_lighting
+    from gaffer_envmap.io import read_envmap
+
+    root, _ = dataset
+    p = dataset_pairs(root)[1]
+    maps = pair_lighting([p], 64, "neural-gaffer")
+    lt = p.lighting
+    env = AugmentSpec(flip=lt.flip, yaw_step=lt.yaw_step, num_steps=lt.num_steps).apply(
+        read_envmap(lt.source)
+    )
+    ref = encode_lighting(env, lt.w2c_blender[None], size=64, compat="neural-gaffer")
+    torch.testing.assert_close(maps.ldr, ref.ldr.float())
+    torch.testing.assert_close(maps.hdr, ref.hdr.float())
+
+
+def test_evaluate_dataset_is_batch_invariant_and_merges_reports(dataset, tmp_path) -> None:
+    root, _ = dataset
+    pairs = dataset_pairs(root)
+    pipe = RelightPipeline(tiny_model())
+    sampling = SamplingConfig(num_inference_steps=2)
+    done = []
+    a = evaluate_dataset(
+        pipe,
+        pairs,
+        EvaluationConfig(sampling=sampling, batch_size=3, predictions_dir=tmp_path / "pred"),
+        perceptual=None,
+        settings={"checkpoint": "tiny"},
+        on_batch=lambda d, n: done.append((d, n)),
+    )
+    b = evaluate_dataset(
+        pipe, pairs, EvaluationConfig(sampling=sampling, batch_size=4), perceptual=None
+    )
+    assert done == [(3, 4), (4, 4)]
+    assert [i.name for i in a.report.items] == [p.name for p in pairs]
+    for x, y in zip(a.report.items, b.report.items, strict=True):
+        assert x.raw.psnr == pytest.approx(y.raw.psnr, abs=1e-3)
+    assert a.report.mean_aligned_mask is not None
+    assert a.settings["checkpoint"] == "tiny" and a.settings["pairs"] == 4
+    assert a.settings["num_inference_steps"] == 2 and a.settings["dtype"] == "float32"
+    saved = sorted((tmp_path / "pred" / "disc").glob("*.png"))
+    assert [s.stem for s in saved] == [p.name.split("/")[1] for p in pairs]
+    # the saved PNGs are exactly what was scored (8-bit predictions)
+    pred = torch.from_numpy(np.asarray(Image.open(saved[0]), np.float32) / 255).permute(2, 0, 1)
+    gt_rgba = (
+        np.asarray(
+            Image.open(pairs[0].target_image).resize((64, 64), Image.Resampling.BICUBIC), np.float32
+        )
+        / 255
+    )
+    gt = gt_rgba[..., :3] * gt_rgba[..., 3:] + 1 - gt_rgba[..., 3:]
+    gt_t = torch.from_numpy(gt).permute(2, 0, 1)
+    single = evaluate_images(pred[None], gt_t[None], perceptual=None)
+    assert single.mean_raw.psnr == pytest.approx(a.report.items[0].raw.psnr, abs=1e-4)
+    md = a.to_markdown()
+    assert "aligned (mask)" in md and "num_inference_steps" in md
+    assert json.loads(a.to_json())["metrics"]["items"][0]["name"] == pairs[0].name
+
+
+def test_combine_reports_means_over_all_items() -> None:
+    g = torch.Generator().manual_seed(0)
+    gt = torch.rand(3, 3, 16, 16, generator=g)
+    pred = (gt + 0.1 * torch.rand(gt.shape, generator=g)).clamp(0, 1)
+    whole = evaluate_images(pred, gt, perceptual=None)
+    parts = [
+        evaluate_images(pred[:1], gt[:1], perceptual=None),
+        evaluate_images(pred[1:], gt[1:], perceptual=None),
+    ]
+    merged = combine_reports(parts)
+    assert merged.mean_raw.psnr == pytest.approx(whole.mean_raw.psnr)
+    assert merged.mean_aligned_image.ssim == pytest.approx(whole.mean_aligned_image.ssim)
+    with pytest.raises(ConfigError, match="reports"):
+        combine_reports([])
+    masked = evaluate_images(pred[:1], gt[:1], mask=torch.ones(1, 1, 16, 16), perceptual=None)
+    with pytest.raises(ConfigError, match="masked"):
+        combine_reports([parts[0], masked])
+
+
+def test_cli_evaluate_dataset_with_our_checkpoint(dataset, tmp_path, capsys) -> None:
+    root, envmaps = dataset
+    model = tmp_path / "model"
+    assert main(["init-random", "--preset", "tiny", "--out", str(model)]) == 0
+    args = ["evaluate", "--dataset", str(root), "--checkpoint", str(model), "--steps", "2"]
+    args += ["--envmaps", str(envmaps), "--limit", "2", "--no-perceptual"]
+    args += ["--json", str(tmp_path / "r.json"), "--markdown", str(tmp_path / "r.md")]
+    assert main(args) == 0
+    report = json.loads((tmp_path / "r.json").read_text())
+    assert report["settings"]["pairs"] == 2 and report["settings"]["checkpoint"] == str(model)
+    assert len(report["metrics"]["items"]) == 2
+    assert "aligned (whole image)" in (tmp_path / "r.md").read_text()
+    assert "PSNR" in capsys.readouterr().out
+    # --dataset and --pred are two different modes
+    assert main(["evaluate", "--dataset", str(root), "--pred", str(tmp_path)]) == 2
+    assert "either" in capsys.readouterr().err
+    assert main(["evaluate", "--dataset", str(root)]) == 2
+    assert "--checkpoint" in capsys.readouterr().err
+
+
+def test_evaluation_config_validates() -> None:
+    with pytest.raises(ConfigError, match="batch_size"):
+        EvaluationConfig(batch_size=0)
+    with pytest.raises(ConfigError, match="compat"):
+        EvaluationConfig(compat="theirs")  # type: ignore[arg-type]
+    assert dataclasses.replace(EvaluationConfig(), seed=3).seed == 3
