@@ -17,9 +17,20 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 def test_defaults_are_the_paper_recipe() -> None:
     cfg = TrainConfig.from_dict({"output_dir": "run", "data": {"root": "data"}})
     o, t, d = cfg.optim, cfg.train, cfg.data
-    assert (o.lr, o.betas, o.weight_decay, o.eps, o.warmup_steps) == (1e-4, (0.9, 0.999), 1e-2, 1e-8, 100)
+    assert (o.lr, o.betas, o.weight_decay, o.eps, o.warmup_steps) == (
+        1e-4,
+        (0.9, 0.999),
+        1e-2,
+        1e-8,
+        100,
+    )
     assert o.max_grad_norm is None
-    assert (t.batch_size, t.mixed_precision, t.gradient_checkpointing, t.cfg_dropout_p) == (64, "fp16", True, 0.05)
+    assert (t.batch_size, t.mixed_precision, t.gradient_checkpointing, t.cfg_dropout_p) == (
+        64,
+        "fp16",
+        True,
+        0.05,
+    )
     assert (d.targets_per_sample, d.area_light_prob) == (2, 0.1)
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg
 

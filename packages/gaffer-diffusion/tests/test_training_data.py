@@ -25,7 +25,9 @@ from gaffer_diffusion.training.testing import write_synthetic_dataset
 
 @pytest.fixture(scope="module")
 def root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return write_synthetic_dataset(tmp_path_factory.mktemp("ds") / "data", objects=3, views=2, lightings=3)
+    return write_synthetic_dataset(
+        tmp_path_factory.mktemp("ds") / "data", objects=3, views=2, lightings=3
+    )
 
 
 def _cfg(root: Path, **kw: object) -> DataConfig:
@@ -39,7 +41,13 @@ def test_item_shapes_and_targets(root: Path) -> None:
     assert item.input_image.shape == (3, 16, 16) and item.target_images.shape == (2, 3, 16, 16)
     assert item.envmaps.shape == (2, 8, 16, 3) and item.w2c_blender.shape == (3, 4)
     batch = collate_items([ds[0], ds[1], ds[2]])
-    assert batch.target_images.shape == (3, 2, 3, 16, 16) and batch.envmaps.shape == (3, 2, 8, 16, 3)
+    assert batch.target_images.shape == (3, 2, 3, 16, 16) and batch.envmaps.shape == (
+        3,
+        2,
+        8,
+        16,
+        3,
+    )
     assert batch.skipped == 0
 
 
@@ -51,7 +59,9 @@ def test_same_key_same_item_and_area_probability(root: Path) -> None:
     never = RelightTrainDataset([root], _cfg(root, area_light_prob=0.0), 16)
     assert all(always[k].input_is_area for k in range(12))
     assert not any(never[k].input_is_area for k in range(12))
-    freq = np.mean([RelightTrainDataset([root], _cfg(root), 16)[k].input_is_area for k in range(300)])
+    freq = np.mean(
+        [RelightTrainDataset([root], _cfg(root), 16)[k].input_is_area for k in range(300)]
+    )
     assert 0.05 < freq < 0.16  # paper: 10% area-light inputs
 
 
@@ -97,10 +107,14 @@ def test_missing_and_corrupt_files_are_skipped_with_a_count(
     (root / "objects" / "obj2" / "manifest.json").write_text("{not json")
     with caplog.at_level(logging.WARNING):
         ds = RelightTrainDataset([root], _cfg(root), 16)
-    assert len(ds.objects) == 2 and len(ds.skipped_objects) == 1 and "unreadable object" in caplog.text
+    assert (
+        len(ds.objects) == 2 and len(ds.skipped_objects) == 1 and "unreadable object" in caplog.text
+    )
     items = [ds[k] for k in range(40)]
     skipped = sum(i.skipped for i in items)
-    assert skipped > 0 and any("000_000.png" in f or "001_002" in f for i in items for f in i.skipped_files)
+    assert skipped > 0 and any(
+        "000_000.png" in f or "001_002" in f for i in items for f in i.skipped_files
+    )
     assert collate_items(items[:8]).skipped == sum(i.skipped for i in items[:8])
 
 
@@ -121,7 +135,9 @@ def test_moved_envmaps_are_found_in_envmap_dirs(tmp_path: Path) -> None:
     (root / "envmaps").rename(moved)
     with pytest.raises(DataError):
         RelightTrainDataset([root], _cfg(root, max_load_retries=1), 16)[0]
-    assert RelightTrainDataset([root], _cfg(root, envmap_dirs=(moved,)), 16)[0].envmaps.shape[0] == 2
+    assert (
+        RelightTrainDataset([root], _cfg(root, envmap_dirs=(moved,)), 16)[0].envmaps.shape[0] == 2
+    )
 
 
 def test_batched_lighting_matches_one_by_one(root: Path) -> None:
@@ -139,17 +155,25 @@ def test_batched_lighting_matches_one_by_one(root: Path) -> None:
 
 
 def test_extreme_hdr_maps_give_finite_conditioning(tmp_path: Path) -> None:
-    root = write_synthetic_dataset(tmp_path / "d", objects=1, views=1, lightings=3, envmaps=1, sun_peak=1e38)
+    root = write_synthetic_dataset(
+        tmp_path / "d", objects=1, views=1, lightings=3, envmaps=1, sun_peak=1e38
+    )
     ds = RelightTrainDataset([root], _cfg(root), 16)
     item = ds[0]
     assert float(item.envmaps.max()) <= 1.0001e30  # clamped to `data.max_radiance`
-    ldr, hdr = encode_batch_lighting(item.envmaps, item.w2c_blender[None].expand(2, 3, 4), size=16, compat="default")
+    ldr, hdr = encode_batch_lighting(
+        item.envmaps, item.w2c_blender[None].expand(2, 3, 4), size=16, compat="default"
+    )
     assert torch.isfinite(ldr).all() and torch.isfinite(hdr).all() and float(hdr.max()) <= 1.0
 
 
 def test_cfg_dropout_frequencies() -> None:
     r = torch.rand(200_000, generator=torch.Generator().manual_seed(0))
     clip, lat = cfg_dropout_masks(r, 0.05)
-    only_clip, both, only_lat = (clip & ~lat).float().mean(), (clip & lat).float().mean(), (lat & ~clip).float().mean()
+    only_clip, both, only_lat = (
+        (clip & ~lat).float().mean(),
+        (clip & lat).float().mean(),
+        (lat & ~clip).float().mean(),
+    )
     for f in (only_clip, both, only_lat):
         assert abs(float(f) - 0.05) < 0.003

@@ -1,4 +1,4 @@
-"""Command line: `gaffer-diffusion relight | evaluate | init-random`.
+"""Command line: `gaffer-diffusion relight | evaluate | init-random | train`.
 
     gaffer-diffusion relight IMAGE --envmap ENV.exr (--w2c W2C.npy | --azimuth DEG --elevation DEG)
         --checkpoint CKPT [--base-model DIR] --out OUT.png [--steps 50] [--guidance 3] [--seed 0]
@@ -10,6 +10,7 @@
         [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
     gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
     gaffer-diffusion init-random --preset tiny --out DIR   (random weights in our format, for demos)
+    gaffer-diffusion train --config CONFIG.json [--resume]   (extra [train]; configs/ has examples)
 
 `--checkpoint` is either our format (a folder with `gaffer_model.json`) or the authors' release
 (`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
@@ -28,7 +29,12 @@ from PIL import Image
 
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions, lighting_from_envmap
 from gaffer_diffusion.configs import PRESETS, get_preset
-from gaffer_diffusion.errors import ConfigError, GafferDiffusionError, InputValueError
+from gaffer_diffusion.errors import (
+    ConfigError,
+    GafferDiffusionError,
+    InputValueError,
+    MissingDependencyError,
+)
 from gaffer_diffusion.loading import (
     MANIFEST_NAME,
     load_authors_release,
@@ -155,6 +161,12 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--preset", choices=PRESETS, default="tiny")
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--out", type=Path, required=True)
+
+    t = sub.add_parser("train", help="train the UNet on gaffer-data renders (extra [train])")
+    t.add_argument("--config", type=Path, required=True, help="training config JSON (see configs/)")
+    t.add_argument(
+        "--resume", action="store_true", help="continue from the newest checkpoint in output_dir"
+    )
     return p
 
 
@@ -495,6 +507,23 @@ def _init_random(args: argparse.Namespace) -> int:
     return 0
 
 
+def _train(args: argparse.Namespace) -> int:
+    try:
+        from gaffer_diffusion.training import load_config, train
+    except ImportError as exc:
+        raise MissingDependencyError(
+            f'Training needs the train extra ({exc.name} is missing): pip install "gaffer-diffusion[train]"'
+        ) from exc
+    result = train(load_config(args.config), resume=args.resume)
+    print(
+        f"trained steps {result.start_step} -> {result.step} ({result.stop_reason}) in "
+        f"{result.seconds:.0f} s; checkpoint {result.checkpoint}; final model {result.final_model}"
+    )
+    for v in result.validations[-1:]:
+        print(f"validation PSNR {v.psnr:.2f} dB (unrelit input: {v.psnr_identity:.2f} dB)")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `gaffer-diffusion` console script; returns the exit status."""
     args = _parser().parse_args(argv)
@@ -507,6 +536,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _evaluate(args)
             case "init-random":
                 return _init_random(args)
+            case "train":
+                return _train(args)
     except GafferDiffusionError as exc:
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
         return 2

@@ -77,7 +77,9 @@ class TrainState:
             ResumeError: foreign schema, other MAJOR version or missing fields.
         """
         if data.get("schema") != STATE_SCHEMA:
-            raise ResumeError(f"{where} has schema {data.get('schema')!r}, expected {STATE_SCHEMA!r}.")
+            raise ResumeError(
+                f"{where} has schema {data.get('schema')!r}, expected {STATE_SCHEMA!r}."
+            )
         if str(data.get("schema_version", "")).split(".")[0] != STATE_SCHEMA_VERSION.split(".")[0]:
             raise ResumeError(
                 f"{where} has schema_version {data.get('schema_version')!r}; this gaffer-diffusion "

@@ -72,7 +72,9 @@ class ModelSource:
                 f"`model.init` is {self.init!r}; expected 'preset', 'zero123-xl' or 'pretrained'."
             )
         if self.init == "preset" and self.preset not in PRESETS:
-            raise ConfigError(f"`model.preset` is {self.preset!r}; expected one of {list(PRESETS)}.")
+            raise ConfigError(
+                f"`model.preset` is {self.preset!r}; expected one of {list(PRESETS)}."
+            )
         if self.init != "preset" and self.path is None:
             raise ConfigError(
                 f"`model.init` is {self.init!r}, which needs `model.path` (a local folder); nothing is "
@@ -415,7 +417,9 @@ def _convert(tp: Any, value: Any, where: str, base_dir: Path | None) -> Any:
         if not isinstance(value, list | tuple):
             raise ConfigError(f"`{where}` must be a list, got {value!r}.")
         if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(args[0], v, f"{where}[{i}]", base_dir) for i, v in enumerate(value))
+            return tuple(
+                _convert(args[0], v, f"{where}[{i}]", base_dir) for i, v in enumerate(value)
+            )
         if len(value) != len(args):
             raise ConfigError(f"`{where}` must have {len(args)} entries, got {value!r}.")
         return tuple(

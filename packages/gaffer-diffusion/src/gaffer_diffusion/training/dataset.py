@@ -26,6 +26,7 @@ from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -146,7 +147,9 @@ def split_object_ids(
     )
 
 
-def load_image_on_white(path: Path, size: int, alpha_path: Path | None = None) -> Float[Tensor, "3 S S"]:
+def load_image_on_white(
+    path: Path, size: int, alpha_path: Path | None = None
+) -> Float[Tensor, "3 S S"]:
     """An sRGB PNG with straight alpha composited on white, resized to `size` (bilinear, antialiased).
 
     Args:
@@ -190,6 +193,9 @@ class _EnvmapCache:
         self.max_radiance = max_radiance
         self.dirs = tuple(dirs)
         self._items: OrderedDict[tuple[str, bool, int, int], np.ndarray] = OrderedDict()
+        # decoded source maps: one file serves all its flips and yaw steps
+        self.source_capacity = 8
+        self._sources: OrderedDict[Path, Any] = OrderedDict()
 
     def resolve(self, ref: EnvmapRef, dataset_root: Path) -> Path:
         candidates = [Path(ref.source), dataset_root / ref.source, dataset_root.parent / ref.source]
@@ -214,7 +220,15 @@ class _EnvmapCache:
         from gaffer_envmap.io import read_envmap
         from gaffer_envmap.resample import resize_conservative
 
-        env = read_envmap(self.resolve(ref, dataset_root), sanitize="clamp")
+        path = self.resolve(ref, dataset_root)
+        env = self._sources.get(path)
+        if env is None:
+            env = read_envmap(path, sanitize="clamp")
+            self._sources[path] = env
+            if len(self._sources) > self.source_capacity:
+                self._sources.popitem(last=False)
+        else:
+            self._sources.move_to_end(path)
         # the augmentation the renderer applied, at the source resolution (exact pixel rolls)
         env = AugmentSpec(flip=ref.flip, yaw_step=ref.yaw_step, num_steps=ref.num_steps).apply(env)
         if env.height != self.height:
@@ -379,7 +393,9 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         lit = view.lit
         # Neural Gaffer §3.1: 10% of inputs are the area-light render, else another envmap render
         draw = float(rng.random())
-        use_area = view.area is not None and (draw < self.config.area_light_prob or len(lit) < t + 1)
+        use_area = view.area is not None and (
+            draw < self.config.area_light_prob or len(lit) < t + 1
+        )
         order = rng.permutation(len(lit))
         targets = [lit[i] for i in order[:t]]
         alpha = None if view.alpha is None else obj.path(view.alpha)
@@ -388,9 +404,14 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
             input_image = load_image_on_white(obj.path(view.area.png), size, alpha)
         else:
             input_image = load_image_on_white(obj.path(lit[int(order[t])].png), size, alpha)
-        target_images = torch.stack([load_image_on_white(obj.path(li.png), size, alpha) for li in targets])
+        target_images = torch.stack(
+            [load_image_on_white(obj.path(li.png), size, alpha) for li in targets]
+        )
         envmaps = torch.stack(
-            [torch.from_numpy(self._cache.get(li.envmap, obj.root.parent.parent).copy()) for li in targets]
+            [
+                torch.from_numpy(self._cache.get(li.envmap, obj.root.parent.parent).copy())
+                for li in targets
+            ]
         )
         return TrainItem(
             input_image=input_image,
@@ -482,4 +503,6 @@ def encode_batch_lighting(
         compat=compat,
         device=device,
     )
-    return enc.ldr.to(device=device, dtype=torch.float32), enc.hdr.to(device=device, dtype=torch.float32)
+    return enc.ldr.to(device=device, dtype=torch.float32), enc.hdr.to(
+        device=device, dtype=torch.float32
+    )

@@ -11,13 +11,15 @@ class TrainingDivergedError(GafferDiffusionError, FloatingPointError):
     """Too many consecutive steps had NaN/Inf loss or gradients; a checkpoint of the last good weights
     was written first. Carries `step` and `checkpoint` (its folder, or None)."""
 
-    def __init__(self, step: int, consecutive: int, checkpoint: object, mixed_precision: str) -> None:
+    def __init__(
+        self, step: int, consecutive: int, checkpoint: object, mixed_precision: str
+    ) -> None:
         self.step = step
         self.consecutive = consecutive
         self.checkpoint = checkpoint
         hint = (
-            " fp16 overflows easily: set `train.mixed_precision` to \"bf16\" (fp32's exponent range) or "
-            "\"no\"."
+            ' fp16 overflows easily: set `train.mixed_precision` to "bf16" (fp32\'s exponent range) or '
+            '"no".'
             if mixed_precision == "fp16"
             else ""
         )

@@ -134,9 +134,7 @@ def _step_generator(seed: int, step: int, rank: int, micro: int) -> torch.Genera
     return torch.Generator().manual_seed(int(state[0]) & 0x7FFF_FFFF_FFFF_FFFF)
 
 
-def cfg_dropout_masks(
-    r: torch.Tensor, p: float
-) -> tuple[torch.Tensor, torch.Tensor]:
+def cfg_dropout_masks(r: torch.Tensor, p: float) -> tuple[torch.Tensor, torch.Tensor]:
     """The paper's CFG dropout from one uniform draw per item (official implementation §2).
 
     Returns:
@@ -164,11 +162,15 @@ class _Trainer:
         cuda = self.device.type == "cuda"
         mp = config.train.mixed_precision
         # frozen networks in half precision only on GPUs (CPU half kernels are slow or missing)
-        self.weight_dtype = {
-            "fp16": torch.float16,
-            "bf16": torch.bfloat16,
-            "no": torch.float32,
-        }[mp] if cuda else torch.float32
+        self.weight_dtype = (
+            {
+                "fp16": torch.float16,
+                "bf16": torch.bfloat16,
+                "no": torch.float32,
+            }[mp]
+            if cuda
+            else torch.float32
+        )
 
     # ---------------------------------------------------------------- one micro-step
     def loss(self, unet: torch.nn.Module, batch: TrainBatch, gen: torch.Generator) -> torch.Tensor:
@@ -197,12 +199,18 @@ class _Trainer:
             ldr_lat = cond_all[b + n : b + 2 * n]
             # only the target latent is scaled (official implementation §1)
             z0 = sampled[b + 2 * n :] * m.config.vae.scaling_factor  # [BT, 4, h, w]
-            pixels = clip_preprocess(inputs.to(self.weight_dtype) * 2.0 - 1.0, m.config.image_encoder.image_size)
-            clip = m.image_encoder(pixel_values=pixels).image_embeds.float().unsqueeze(1)  # [B, 1, D]
+            pixels = clip_preprocess(
+                inputs.to(self.weight_dtype) * 2.0 - 1.0, m.config.image_encoder.image_size
+            )
+            clip = (
+                m.image_encoder(pixel_values=pixels).image_embeds.float().unsqueeze(1)
+            )  # [B, 1, D]
             clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
         cond = torch.cat([image_lat, hdr_lat, ldr_lat], dim=1)  # [BT, 12, h, w]
         noise = torch.randn(z0.shape, generator=gen).to(dev)
-        timesteps = torch.randint(0, self.scheduler.config.num_train_timesteps, (n,), generator=gen).to(dev)
+        timesteps = torch.randint(
+            0, self.scheduler.config.num_train_timesteps, (n,), generator=gen
+        ).to(dev)
         r = torch.rand(n, generator=gen).to(dev)
         drop_clip, drop_lat = cfg_dropout_masks(r, cfg.train.cfg_dropout_p)
         clip = clip * (~drop_clip).to(clip.dtype).view(n, 1, 1)
@@ -257,7 +265,9 @@ def _make_accelerator(config: TrainConfig) -> Any:
         project_dir=str(config.output_dir),
     )
     if config.train.mixed_precision == "fp16" and acc.device.type == "cpu":
-        logger.warning("`train.mixed_precision` fp16 on a CPU: autocast/grad scaling are GPU features")
+        logger.warning(
+            "`train.mixed_precision` fp16 on a CPU: autocast/grad scaling are GPU features"
+        )
     return acc
 
 
@@ -364,7 +374,9 @@ def train(
     )
 
     # ---------------------------------------------------------------- resume
-    state = ckpt.TrainState(step=0, samples_seen=0, world_size=acc.num_processes, config=cfg.to_dict())
+    state = ckpt.TrainState(
+        step=0, samples_seen=0, world_size=acc.num_processes, config=cfg.to_dict()
+    )
     if resume_from is not None:
         state = ckpt.read_state(resume_from)
         acc.load_state(str(resume_from))
@@ -373,7 +385,9 @@ def train(
             if ema_file.is_file():
                 ema.load(str(ema_file))
             else:
-                logger.warning("%s has no EMA weights; the EMA restarts from the current weights", resume_from)
+                logger.warning(
+                    "%s has no EMA weights; the EMA restarts from the current weights", resume_from
+                )
                 ema = EMAModel(acc.unwrap_model(unet), cfg.train.ema_decay)
         if state.world_size != acc.num_processes:
             logger.warning(
@@ -406,7 +420,9 @@ def train(
     )
     batches = _batches(loader)
 
-    log = MetricsLogger(out / "logs", enabled=acc.is_main_process, tensorboard=cfg.logging.tensorboard)
+    log = MetricsLogger(
+        out / "logs", enabled=acc.is_main_process, tensorboard=cfg.logging.tensorboard
+    )
     progress = None
     if cfg.logging.progress_bar and acc.is_main_process:
         from tqdm.auto import tqdm
@@ -454,7 +470,9 @@ def train(
             sheet_dir=(out / "val") if cfg.validation.save_images else None,
         )
         validations.append(result)
-        log.log(step, {"psnr": result.psnr, "psnr_identity": result.psnr_identity}, kind="validation")
+        log.log(
+            step, {"psnr": result.psnr, "psnr_identity": result.psnr_identity}, kind="validation"
+        )
         if result.sheet is not None and log.tensorboard_enabled:
             from PIL import Image
 
@@ -560,7 +578,10 @@ def train(
                 ve = cfg.validation.every_steps
                 if ve > 0 and state.step % ve == 0 and state.step < cfg.train.max_steps:
                     run_validation(state.step)
-                if state.step % cfg.checkpoint.every_steps == 0 and state.step < cfg.train.max_steps:
+                if (
+                    state.step % cfg.checkpoint.every_steps == 0
+                    and state.step < cfg.train.max_steps
+                ):
                     last_ckpt = save(state)
                 flag = torch.tensor([1.0 if sigterm.set else 0.0], device=acc.device)
                 if float(acc.reduce(flag, reduction="sum").item()) > 0:

@@ -98,8 +98,13 @@ def write_synthetic_dataset(
     rng = np.random.default_rng(seed)
     root.mkdir(parents=True, exist_ok=True)
     pool = write_envmaps(root / "envmaps", envmaps, envmap_height, seed=seed, peak=sun_peak)
-    means = [np.minimum(read_envmap(p, sanitize="clamp").radiance_linear.mean(axis=(0, 1)), 4.0) for p in pool]
-    cfg = RenderConfig(views=views, lightings=lightings, resolution=size, samples=1, area_light_render=area)
+    means = [
+        np.minimum(read_envmap(p, sanitize="clamp").radiance_linear.mean(axis=(0, 1)), 4.0)
+        for p in pool
+    ]
+    cfg = RenderConfig(
+        views=views, lightings=lightings, resolution=size, samples=1, area_light_render=area
+    )
     ids = []
     for o in range(objects):
         oid = f"obj{o}"
@@ -126,12 +131,16 @@ def write_synthetic_dataset(
                     yaw_step=int(rng.integers(4)),
                     num_steps=4,
                 )
-                lits.append(LitImage(lighting_index=li, envmap=ref, exr=f"{rel}.exr", png=f"{rel}.png"))
+                lits.append(
+                    LitImage(lighting_index=li, envmap=ref, exr=f"{rel}.exr", png=f"{rel}.png")
+                )
             area_rec = None
             if area:
                 _save_png(folder / f"area/{v:03d}.png", _disc_rgba(size, albedo, np.full(3, 0.7)))
                 area_rec = AreaLightImage(
-                    light=AreaLightSample(location=(0.0, 0.0, 1.0), energy=400.0, scale=100.0, world_grey=0.35),
+                    light=AreaLightSample(
+                        location=(0.0, 0.0, 1.0), energy=400.0, scale=100.0, world_grey=0.35
+                    ),
                     exr=f"area/{v:03d}.exr",
                     png=f"area/{v:03d}.png",
                     normal=f"normal/{v:03d}.exr",
@@ -141,23 +150,35 @@ def write_synthetic_dataset(
             view_records.append(
                 ViewRecord(
                     index=v,
-                    camera=CameraSample(elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0)),
+                    camera=CameraSample(
+                        elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0)
+                    ),
                     lit=tuple(lits),
                     area=area_rec,
                     alpha=None,
                 )
             )
         k_mat = np.array([[size, 0, size / 2], [0, size, size / 2], [0, 0, 1]], np.float64)
-        np.savez(folder / "cameras.npz", w2c_blender=np.stack(w2cs), c2w_opencv=np.stack(c2ws), intrinsics=k_mat)
+        np.savez(
+            folder / "cameras.npz",
+            w2c_blender=np.stack(w2cs),
+            c2w_opencv=np.stack(c2ws),
+            intrinsics=k_mat,
+        )
         plan = ObjectPlan(
             object_id=oid,
             source=f"/synthetic/{oid}.glb",
             views=tuple(view_records),
-            intrinsics=Intrinsics(width=size, height=size, fx=size, fy=size, cx=size / 2, cy=size / 2),
+            intrinsics=Intrinsics(
+                width=size, height=size, fx=size, fy=size, cx=size / 2, cy=size / 2
+            ),
             config=cfg,
         )
         manifest = object_manifest_json(
-            plan, source_sha256="0" * 64, normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)), files=[]
+            plan,
+            source_sha256="0" * 64,
+            normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
+            files=[],
         )
         (folder / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
     (root / "dataset.json").write_text(

@@ -1,0 +1,251 @@
+"""The training loop: exact resume, frozen parts, checkpoints (atomic, rotated, SIGTERM), NaN handling,
+logging and validation, the CLI (issue 5). Tiny random-init model, 32 px synthetic renders, CPU."""
+
+import json
+import os
+import signal
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+pytest.importorskip("gaffer_data")
+pytest.importorskip("accelerate")
+
+from gaffer_diffusion.training import (
+    ResumeError,
+    TrainConfig,
+    TrainingDivergedError,
+    load_checkpoint_model,
+    train,
+)
+from gaffer_diffusion.training import checkpoint as ckpt
+from gaffer_diffusion.training import loop as loop_mod
+from gaffer_diffusion.training.testing import write_synthetic_dataset
+from gaffer_diffusion.training.tracking import read_log
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    # 2 shared cores: one intra-op thread is ~10x faster than two contending ones for tiny models
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+@pytest.fixture(scope="module")
+def data_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_synthetic_dataset(
+        tmp_path_factory.mktemp("train") / "data", objects=3, views=2, lightings=3
+    )
+
+
+def _config(out: Path, root: Path, **sections: dict[str, Any]) -> TrainConfig:
+    base: dict[str, Any] = {
+        "output_dir": str(out),
+        "model": {"init": "preset", "preset": "tiny", "resolution": 32},
+        "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
+        "optim": {"lr": 1e-3, "warmup_steps": 2},
+        "train": {
+            "max_steps": 4,
+            "batch_size": 2,
+            "mixed_precision": "no",
+            "gradient_checkpointing": False,
+            "ema_decay": 0.9,
+        },
+        "checkpoint": {"every_steps": 2, "keep": 2},
+        "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
+        "validation": {"every_steps": 0},
+    }
+    for k, v in sections.items():
+        base[k] = {**base.get(k, {}), **v} if isinstance(v, dict) else v
+    return TrainConfig.from_dict(base)
+
+
+def test_resume_gives_the_same_loss_curve(tmp_path: Path, data_root: Path) -> None:
+    straight = train(_config(tmp_path / "a", data_root, train={"max_steps": 6}))
+    first = train(
+        _config(tmp_path / "b", data_root, train={"max_steps": 3}, checkpoint={"every_steps": 3})
+    )
+    assert first.step == 3 and first.checkpoint is not None
+    second = train(_config(tmp_path / "b", data_root, train={"max_steps": 6}), resume=True)
+    assert second.start_step == 3 and second.step == 6
+    resumed = first.losses + second.losses
+    assert len(resumed) == len(straight.losses) == 6
+    torch.testing.assert_close(
+        torch.tensor(resumed), torch.tensor(straight.losses), rtol=1e-6, atol=1e-7
+    )
+    a = load_checkpoint_model(straight.checkpoint)
+    b = load_checkpoint_model(second.checkpoint)
+    for (n, pa), (_, pb) in zip(a.unet.named_parameters(), b.unet.named_parameters(), strict=True):
+        torch.testing.assert_close(pa, pb, rtol=1e-5, atol=1e-6, msg=n)
+    rows = read_log(tmp_path / "b" / "logs" / "train.jsonl")
+    assert [r["step"] for r in rows] == [1, 2, 3, 4, 5, 6]
+    assert {"loss", "lr", "samples_per_s", "data_wait_share", "grad_norm"} <= set(rows[-1])
+
+
+def test_only_the_unet_trains(
+    tmp_path: Path, data_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    built: list[Any] = []
+    real = loop_mod.build_training_model
+
+    def spy(source):
+        m = real(source)
+        built.append(
+            (
+                m,
+                {k: v.clone() for k, v in m.vae.state_dict().items()},
+                {k: v.clone() for k, v in m.image_encoder.state_dict().items()},
+                {k: v.clone() for k, v in m.unet.state_dict().items()},
+            )
+        )
+        return m
+
+    monkeypatch.setattr(loop_mod, "build_training_model", spy)
+    cfg = _config(
+        tmp_path / "r",
+        data_root,
+        train={"max_steps": 2, "grad_accum": 2, "gradient_checkpointing": True},
+        optim={"max_grad_norm": 0.5},
+    )
+    result = train(cfg)
+    model, vae0, clip0, unet0 = built[0]
+    assert all(torch.equal(v, vae0[k]) for k, v in model.vae.state_dict().items())
+    assert all(torch.equal(v, clip0[k]) for k, v in model.image_encoder.state_dict().items())
+    assert not any(p.requires_grad for p in model.vae.parameters())
+    assert not any(p.requires_grad for p in model.image_encoder.parameters())
+    assert any(not torch.equal(v, unet0[k]) for k, v in model.unet.state_dict().items())
+    assert result.final_model is not None and (result.final_model / "gaffer_model.json").is_file()
+    assert all(torch.isfinite(torch.tensor(result.losses)))
+
+
+def test_checkpoints_rotate_and_a_crash_while_saving_keeps_the_last(
+    tmp_path: Path, data_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "run"
+    train(_config(out, data_root, train={"max_steps": 6}, checkpoint={"every_steps": 1, "keep": 2}))
+    steps = [s for s, _ in ckpt.list_checkpoints(out / "checkpoints")]
+    assert steps == [5, 6]
+    # a writer killed before its rename leaves only a temporary folder: the latest stays step 6
+    real_replace = os.replace
+
+    def crash(src, dst):
+        if ".tmp-checkpoint-" in str(src):
+            raise KeyboardInterrupt("killed while publishing")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(ckpt.os, "replace", crash)
+    with pytest.raises(KeyboardInterrupt):
+        train(_config(out, data_root, train={"max_steps": 7}), resume=True)
+    monkeypatch.setattr(ckpt.os, "replace", real_replace)
+    assert any(p.name.startswith(".tmp-checkpoint-") for p in (out / "checkpoints").iterdir())
+    assert ckpt.read_state(ckpt.latest_checkpoint(out / "checkpoints")).step == 6
+    result = train(_config(out, data_root, train={"max_steps": 7}), resume=True)
+    assert result.start_step == 6 and result.step == 7
+    assert not any(p.name.startswith(".tmp-") for p in (out / "checkpoints").iterdir())
+
+
+def test_sigterm_saves_and_stops(tmp_path: Path, data_root: Path) -> None:
+    def on_step(step: int, loss: float) -> None:
+        if step == 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    result = train(
+        _config(tmp_path / "s", data_root, train={"max_steps": 5}, checkpoint={"every_steps": 100}),
+        on_step=on_step,
+    )
+    assert result.stop_reason == "sigterm" and result.step == 1
+    assert ckpt.read_state(result.checkpoint).step == 1 and result.final_model is None
+    assert signal.getsignal(signal.SIGTERM) is not None
+
+
+def test_fresh_start_over_checkpoints_and_resume_without_any_are_refused(
+    tmp_path: Path, data_root: Path
+) -> None:
+    with pytest.raises(ResumeError, match="holds no complete checkpoint"):
+        train(_config(tmp_path / "x", data_root), resume=True)
+    train(_config(tmp_path / "y", data_root, train={"max_steps": 1}))
+    with pytest.raises(ResumeError, match="pass `--resume`"):
+        train(_config(tmp_path / "y", data_root, train={"max_steps": 2}))
+
+
+def test_nan_steps_are_skipped_then_training_stops_with_a_usable_checkpoint(
+    tmp_path: Path, data_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    real = loop_mod.build_training_model
+    calls = {"n": 0}
+
+    def poisoned(source):
+        m = real(source)
+
+        def hook(module, args, output):
+            calls["n"] += 1
+            if calls["n"] > 2:  # forward passes 3, 4, ...: an fp16-style overflow
+                output.sample.fill_(float("nan"))
+            return output
+
+        m.unet.register_forward_hook(hook)
+        return m
+
+    monkeypatch.setattr(loop_mod, "build_training_model", poisoned)
+    cfg = _config(
+        tmp_path / "n",
+        data_root,
+        train={"max_steps": 10, "max_consecutive_nonfinite": 3},
+        checkpoint={"every_steps": 100},
+    )
+    with pytest.raises(TrainingDivergedError, match="3 consecutive steps") as info:
+        train(cfg)
+    err = info.value
+    assert err.step == 5 and Path(err.checkpoint).is_dir()
+    state = ckpt.read_state(err.checkpoint)
+    assert state.skipped_steps == 3 and state.consecutive_nonfinite == 3
+    model = load_checkpoint_model(err.checkpoint, use_ema=False)
+    assert all(torch.isfinite(p).all() for p in model.unet.parameters())
+
+
+def test_bf16_with_extreme_hdr_maps_stays_finite(tmp_path: Path) -> None:
+    root = write_synthetic_dataset(
+        tmp_path / "d", objects=2, views=1, lightings=3, envmaps=1, sun_peak=1e38
+    )
+    cfg = _config(
+        tmp_path / "o",
+        root,
+        train={"max_steps": 2, "mixed_precision": "bf16"},
+        data={"val_objects": 0},
+    )
+    result = train(cfg)
+    assert result.skipped_steps == 0 and all(torch.isfinite(torch.tensor(result.losses)))
+
+
+def test_validation_reports_psnr_and_identity_baseline(tmp_path: Path, data_root: Path) -> None:
+    cfg = _config(
+        tmp_path / "v",
+        data_root,
+        train={"max_steps": 2},
+        validation={"every_steps": 1, "num_samples": 2, "num_inference_steps": 2, "batch_size": 2},
+    )
+    result = train(cfg)
+    assert [v.step for v in result.validations] == [1, 2]
+    v = result.validations[-1]
+    assert v.sheet is not None and v.sheet.is_file() and len(v.psnr_per_item) == 2
+    assert 0 < v.psnr < 100
+    rows = read_log(tmp_path / "v" / "logs" / "train.jsonl", kind="validation")
+    assert [r["step"] for r in rows] == [1, 2] and "psnr_identity" in rows[0]
+
+
+def test_cli_train(tmp_path: Path, data_root: Path) -> None:
+    from gaffer_diffusion.cli import main
+
+    cfg = _config(tmp_path / "c", data_root, train={"max_steps": 2})
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(cfg.to_dict()))
+    assert main(["train", "--config", str(path)]) == 0
+    cfg2 = _config(tmp_path / "c", data_root, train={"max_steps": 3})
+    path.write_text(json.dumps(cfg2.to_dict()))
+    assert main(["train", "--config", str(path), "--resume"]) == 0
+    assert ckpt.read_state(ckpt.latest_checkpoint(tmp_path / "c" / "checkpoints")).step == 3
+    assert main(["train", "--config", str(tmp_path / "missing.json")]) == 2

@@ -1,0 +1,489 @@
+"""Typed, frozen configs for fitting and relighting a radiance field, with the paper's defaults.
+
+The defaults are the authors' 3D setup (official implementation §6; paper §4.1 "3D relighting"):
+TensoRF VM with density ranks 16x3 and appearance ranks 48x3, `MLP_Fea` shading (view PE 2, feature PE 2),
+softplus density, 30K iterations of 4096 rays, grid 128^3 -> 300^3 voxels (upsampled at 2000, 3000,
+4000, 5500, 7000), alpha-mask updates at 2000 and 4000, L1 weight 8e-5 then 4e-5, bbox +-1.4, near/far
+0.2-3.2, white background; Stage 1: 2,500 iterations of 4096 rays, grid lr 0.02, network lr 1e-3, Adam
+(0.9, 0.99); Stage 2: 500 iterations, t* 0.4 -> 0.05 (exponential), loss 0.5 L1 + 0.5 perceptual, learning
+rates x 0.1^(1/200) per step.
+
+`fit_preset("tiny")` / `relight_preset("tiny")` are CPU-sized versions for tests and demos.
+"""
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal, assert_never
+
+from gaffer_nerf.errors import ConfigError
+
+Ranks = tuple[int, int, int]
+
+SizingMode = Literal["fixed", "footprint"]
+"""How the final grid resolution is chosen: the paper's fixed voxel count, or from the pixel footprint."""
+
+TStarSchedule = Literal["exponential", "authors"]
+"""Stage-2 noise level t*: the paper's exponential decay, or the authors' effectively constant one."""
+
+Stage2Loss = Literal["guidance", "sds"]
+"""Stage-2 objective: the paper's diffusion guidance loss (Eq. 3) or score distillation (baseline)."""
+
+Ablation = Literal["full", "no-stage1", "no-stage2", "sds-stage2", "sds-only"]
+"""Paper §4.4 ablations: the full pipeline, without Stage 1, without Stage 2, SDS instead of the guidance
+loss in Stage 2, and the SDS baseline (SDS on the input radiance field, no Stage 1)."""
+
+PresetName = Literal["paper", "tiny"]
+
+ABLATIONS: tuple[Ablation, ...] = ("full", "no-stage1", "no-stage2", "sds-stage2", "sds-only")
+
+
+def _positive(name: str, value: float) -> None:
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"`{name}` is {value!r}; expected a finite value > 0.")
+
+
+def _non_negative(name: str, value: float) -> None:
+    if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+        raise ConfigError(f"`{name}` is {value!r}; expected a finite value >= 0.")
+
+
+def _ranks(name: str, value: Ranks) -> None:
+    if len(value) != 3 or any(int(r) < 1 for r in value):
+        raise ConfigError(f"`{name}` is {value!r}; expected three ranks >= 1 (one per plane/line).")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SceneBoxConfig:
+    """Where the object is and how rays are bounded.
+
+    Attributes:
+        aabb_min: world-space corner of the initial bounding box (authors: -1.4 on each axis).
+        aabb_max: opposite corner (authors: +1.4).
+        near: closest ray distance (0.2).
+        far: farthest ray distance (3.2).
+        white_background: composite renders over white (the authors' and NeRF-Synthetic's choice).
+    """
+
+    aabb_min: tuple[float, float, float] = (-1.4, -1.4, -1.4)
+    aabb_max: tuple[float, float, float] = (1.4, 1.4, 1.4)
+    near: float = 0.2
+    far: float = 3.2
+    white_background: bool = True
+
+    def __post_init__(self) -> None:
+        if any(not hi > lo for lo, hi in zip(self.aabb_min, self.aabb_max, strict=True)):
+            raise ConfigError(
+                f"`aabb_min` {self.aabb_min} must be below `aabb_max` {self.aabb_max} on every axis."
+            )
+        if not 0 <= self.near < self.far:
+            raise ConfigError(f"`near`={self.near} and `far`={self.far}: need 0 <= near < far.")
+
+
+@dataclass(frozen=True, kw_only=True)
+class TensoRFConfig:
+    """Shape of the TensoRF VM field (Chen et al. 2022) and of its ray marcher.
+
+    Attributes:
+        density_ranks: components per plane/line pair of the density tensor (16, 16, 16).
+        appearance_ranks: components of the appearance tensor (48, 48, 48).
+        appearance_dim: width of the appearance feature fed to the shading MLP (27).
+        mlp_hidden: hidden width of `MLP_Fea` (128).
+        view_pe: positional-encoding frequencies of the view direction (2).
+        feature_pe: positional-encoding frequencies of the appearance feature (2).
+        density_shift: added before the softplus (-10), so an untrained field is nearly empty.
+        distance_scale: scale of the sample spacing in alpha = 1 - exp(-sigma * delta * scale) (25).
+        step_ratio: ray-march step as a fraction of the mean voxel size (0.5).
+        weight_threshold: samples with a smaller rendering weight skip the appearance network (1e-4).
+        alpha_mask_threshold: voxels whose alpha (after a 3x3x3 max-pool) falls below are empty (1e-4).
+        init_scale: standard deviation of the random factor initialisation (0.1).
+        max_samples: cap on samples per ray (TensoRF: 1e6, i.e. set by the grid).
+    """
+
+    density_ranks: Ranks = (16, 16, 16)
+    appearance_ranks: Ranks = (48, 48, 48)
+    appearance_dim: int = 27
+    mlp_hidden: int = 128
+    view_pe: int = 2
+    feature_pe: int = 2
+    density_shift: float = -10.0
+    distance_scale: float = 25.0
+    step_ratio: float = 0.5
+    weight_threshold: float = 1e-4
+    alpha_mask_threshold: float = 1e-4
+    init_scale: float = 0.1
+    max_samples: int = 1_000_000
+
+    def __post_init__(self) -> None:
+        _ranks("density_ranks", self.density_ranks)
+        _ranks("appearance_ranks", self.appearance_ranks)
+        for name in ("appearance_dim", "mlp_hidden", "max_samples"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"`{name}` is {getattr(self, name)!r}; expected >= 1.")
+        for name in ("view_pe", "feature_pe"):
+            if int(getattr(self, name)) < 0:
+                raise ConfigError(f"`{name}` is {getattr(self, name)!r}; expected >= 0.")
+        for name in ("distance_scale", "step_ratio", "init_scale"):
+            _positive(name, getattr(self, name))
+        for name in ("weight_threshold", "alpha_mask_threshold"):
+            _non_negative(name, getattr(self, name))
+
+
+@dataclass(frozen=True, kw_only=True)
+class GridSizingConfig:
+    """How fine the final grid is ("model no more than the scene needs").
+
+    Attributes:
+        mode: "fixed": `FitConfig.final_voxels` over the (shrunk) box, as the paper (300^3);
+            "footprint": voxel size = the finest camera's pixel footprint at the object's depth divided
+            by `oversample`, so a 256 px capture never gets more voxels than its pixels can constrain.
+        oversample: voxels per pixel footprint along one axis (1.0).
+        max_resolution: cap on voxels per axis (300, the paper's).
+        min_resolution: floor on voxels per axis (16).
+    """
+
+    mode: SizingMode = "fixed"
+    oversample: float = 1.0
+    max_resolution: int = 300
+    min_resolution: int = 16
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("fixed", "footprint"):
+            raise ConfigError(f"`mode` is {self.mode!r}; expected 'fixed' or 'footprint'.")
+        _positive("oversample", self.oversample)
+        if not 2 <= self.min_resolution <= self.max_resolution:
+            raise ConfigError(
+                f"`min_resolution`={self.min_resolution}, `max_resolution`={self.max_resolution}: "
+                "need 2 <= min <= max."
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class EarlyStoppingConfig:
+    """Stop fitting when the held-out PSNR stops improving.
+
+    Attributes:
+        eval_every: iterations between held-out evaluations.
+        patience: evaluations without an improvement of `min_delta_db` before stopping.
+        min_delta_db: smallest PSNR gain that counts as an improvement, in dB.
+        max_rays: held-out rays scored per evaluation (a fixed, seeded subset).
+        min_iterations: never stop before this many iterations (the grid must have been upsampled).
+    """
+
+    eval_every: int = 1000
+    patience: int = 3
+    min_delta_db: float = 0.05
+    max_rays: int = 16384
+    min_iterations: int = 8000
+
+    def __post_init__(self) -> None:
+        if self.eval_every < 1 or self.patience < 1 or self.max_rays < 1:
+            raise ConfigError(
+                f"`eval_every`={self.eval_every}, `patience`={self.patience}, `max_rays`="
+                f"{self.max_rays}: all must be >= 1."
+            )
+        _non_negative("min_delta_db", self.min_delta_db)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FitConfig:
+    """Fitting the radiance field to the input-lighting images (official implementation §6).
+
+    Attributes:
+        tensorf: the TensoRF shape.
+        scene: bounding box, near/far, background.
+        iterations: optimisation steps (30,000).
+        batch_rays: rays per step (4096).
+        initial_voxels: voxels of the initial grid (128^3).
+        final_voxels: voxels after the last upsampling when `sizing.mode == "fixed"` (300^3).
+        upsample_at: iterations at which the grid is upsampled (log-spaced voxel counts).
+        alpha_mask_at: iterations at which the alpha mask is rebuilt; the first one shrinks the box.
+        lr_grid: Adam learning rate of the factor grids (0.02).
+        lr_network: Adam learning rate of the basis matrix and the MLP (1e-3).
+        lr_decay_ratio: learning rates decay exponentially to this fraction over `iterations` (0.1).
+        betas: Adam betas (0.9, 0.99).
+        l1_weight_initial: L1 weight on the density factors before the first alpha mask (8e-5).
+        l1_weight_rest: afterwards (4e-5).
+        tv_weight_density: total-variation weight on the density planes (0 for synthetic scenes).
+        tv_weight_appearance: total-variation weight on the appearance planes (0).
+        sizing: how fine the final grid is.
+        early_stopping: stop on a held-out PSNR plateau; None runs every iteration.
+        seed: torch seed for initialisation and ray sampling.
+    """
+
+    tensorf: TensoRFConfig = field(default_factory=TensoRFConfig)
+    scene: SceneBoxConfig = field(default_factory=SceneBoxConfig)
+    iterations: int = 30_000
+    batch_rays: int = 4096
+    initial_voxels: int = 128**3
+    final_voxels: int = 300**3
+    upsample_at: tuple[int, ...] = (2000, 3000, 4000, 5500, 7000)
+    alpha_mask_at: tuple[int, ...] = (2000, 4000)
+    lr_grid: float = 0.02
+    lr_network: float = 1e-3
+    lr_decay_ratio: float = 0.1
+    betas: tuple[float, float] = (0.9, 0.99)
+    l1_weight_initial: float = 8e-5
+    l1_weight_rest: float = 4e-5
+    tv_weight_density: float = 0.0
+    tv_weight_appearance: float = 0.0
+    sizing: GridSizingConfig = field(default_factory=GridSizingConfig)
+    early_stopping: EarlyStoppingConfig | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.batch_rays < 1:
+            raise ConfigError(
+                f"`iterations`={self.iterations} and `batch_rays`={self.batch_rays} must be >= 1."
+            )
+        if self.initial_voxels < 8 or self.final_voxels < self.initial_voxels:
+            raise ConfigError(
+                f"`initial_voxels`={self.initial_voxels}, `final_voxels`={self.final_voxels}: need "
+                "8 <= initial <= final."
+            )
+        if list(self.upsample_at) != sorted(set(self.upsample_at)):
+            raise ConfigError(f"`upsample_at` {self.upsample_at} must be strictly increasing.")
+        if list(self.alpha_mask_at) != sorted(set(self.alpha_mask_at)):
+            raise ConfigError(f"`alpha_mask_at` {self.alpha_mask_at} must be strictly increasing.")
+        for name in ("lr_grid", "lr_network", "lr_decay_ratio"):
+            _positive(name, getattr(self, name))
+        for name in (
+            "l1_weight_initial",
+            "l1_weight_rest",
+            "tv_weight_density",
+            "tv_weight_appearance",
+        ):
+            _non_negative(name, getattr(self, name))
+        if not all(0 <= b < 1 for b in self.betas):
+            raise ConfigError(f"`betas` {self.betas} must lie in [0, 1).")
+
+
+@dataclass(frozen=True, kw_only=True)
+class DiffusionSamplingConfig:
+    """How the diffusion model is called from the relighting stages (official implementation §2).
+
+    Attributes:
+        num_inference_steps: DDIM steps of the full schedule (50); Stage 2 runs the ones below t*.
+        guidance_scale: classifier-free guidance scale (3.0).
+        batch_size: views relit per pipeline call in Stage 1.
+        compat: lighting encoding, "neural-gaffer" for the released checkpoint or "default".
+        seed: base seed; view i uses `seed + i`.
+    """
+
+    num_inference_steps: int = 50
+    guidance_scale: float = 3.0
+    batch_size: int = 8
+    compat: Literal["neural-gaffer", "default"] = "neural-gaffer"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.num_inference_steps <= 1000 or self.batch_size < 1:
+            raise ConfigError(
+                f"`num_inference_steps`={self.num_inference_steps} must be in [1, 1000] and "
+                f"`batch_size`={self.batch_size} >= 1."
+            )
+        _non_negative("guidance_scale", self.guidance_scale)
+        if self.compat not in ("neural-gaffer", "default"):
+            raise ConfigError(f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'.")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Stage1Config:
+    """Stage 1: fit the appearance to the diffusion-relit training views with L2 (paper Eq. 2).
+
+    Attributes:
+        iterations: steps (2,500).
+        batch_rays: random rays per step (4096).
+        lr_grid: appearance planes/lines (0.02).
+        lr_network: basis matrix and MLP (1e-3).
+        lr_decay_ratio: exponential decay of both over the stage (1.0: constant; the reference lists
+            no decay for this stage).
+        betas: Adam betas (0.9, 0.99).
+    """
+
+    iterations: int = 2500
+    batch_rays: int = 4096
+    lr_grid: float = 0.02
+    lr_network: float = 1e-3
+    lr_decay_ratio: float = 1.0
+    betas: tuple[float, float] = (0.9, 0.99)
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1 or self.batch_rays < 1:
+            raise ConfigError(
+                f"`iterations`={self.iterations} and `batch_rays`={self.batch_rays} must be >= 1."
+            )
+        for name in ("lr_grid", "lr_network", "lr_decay_ratio"):
+            _positive(name, getattr(self, name))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Stage2Config:
+    """Stage 2: refine the appearance with the diffusion guidance loss (paper Eq. 3) or SDS.
+
+    Attributes:
+        iterations: steps, one full training view each (500).
+        loss: "guidance" (paper) or "sds" (the baseline the paper rejects).
+        t_start: t* at the first step, as a fraction of the 1000 training timesteps (0.4).
+        t_end: t* at the last step (0.05).
+        t_schedule: "exponential" (paper: t* = t_start (t_end / t_start)^(k / (K - 1))) or "authors"
+            (the shape of the authors' code: 0.38-0.40 for all but the last few steps).
+        l1_weight: w1 (0.5).
+        perceptual_weight: w2 (0.5).
+        image_tv_weight: weight of an image total-variation term the authors' code adds (1.0 there)
+            but the paper does not mention (0.0 here).
+        lr_grid: appearance planes/lines (0.02).
+        lr_network: basis matrix and MLP (1e-3).
+        lr_gamma: every step multiplies all learning rates by this (0.1^(1/200)).
+        betas: Adam betas (0.9, 0.99).
+        sds_t_range: SDS timesteps are drawn uniformly from this fraction range (0.02, 0.98).
+        sds_guidance_scale: CFG scale of the SDS baseline (3.0).
+        sds_weight: scale of the SDS gradient (1.0).
+        encode_mode: VAE posterior "mode" (deterministic) or "sample" for the rendered view.
+    """
+
+    iterations: int = 500
+    loss: Stage2Loss = "guidance"
+    t_start: float = 0.4
+    t_end: float = 0.05
+    t_schedule: TStarSchedule = "exponential"
+    l1_weight: float = 0.5
+    perceptual_weight: float = 0.5
+    image_tv_weight: float = 0.0
+    lr_grid: float = 0.02
+    lr_network: float = 1e-3
+    lr_gamma: float = 0.1 ** (1.0 / 200.0)
+    betas: tuple[float, float] = (0.9, 0.99)
+    sds_t_range: tuple[float, float] = (0.02, 0.98)
+    sds_guidance_scale: float = 3.0
+    sds_weight: float = 1.0
+    encode_mode: Literal["mode", "sample"] = "mode"
+
+    def __post_init__(self) -> None:
+        if self.iterations < 1:
+            raise ConfigError(f"`iterations`={self.iterations} must be >= 1.")
+        if self.loss not in ("guidance", "sds"):
+            raise ConfigError(f"`loss` is {self.loss!r}; expected 'guidance' or 'sds'.")
+        if self.t_schedule not in ("exponential", "authors"):
+            raise ConfigError(
+                f"`t_schedule` is {self.t_schedule!r}; expected 'exponential' or 'authors'."
+            )
+        if not 0 < self.t_end <= self.t_start < 1:
+            raise ConfigError(
+                f"`t_start`={self.t_start}, `t_end`={self.t_end}: need 0 < t_end <= t_start < 1."
+            )
+        lo, hi = self.sds_t_range
+        if not 0 < lo <= hi < 1:
+            raise ConfigError(f"`sds_t_range` {self.sds_t_range} must satisfy 0 < lo <= hi < 1.")
+        for name in ("l1_weight", "perceptual_weight", "image_tv_weight", "sds_guidance_scale"):
+            _non_negative(name, getattr(self, name))
+        for name in ("lr_grid", "lr_network", "lr_gamma", "sds_weight"):
+            _positive(name, getattr(self, name))
+        if self.encode_mode not in ("mode", "sample"):
+            raise ConfigError(f"`encode_mode` is {self.encode_mode!r}; expected 'mode' or 'sample'.")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RelightConfig:
+    """The two-stage relighting (paper §3.3) and its ablations.
+
+    Attributes:
+        stage1: Stage 1 settings; None skips it ("no Stage 1").
+        stage2: Stage 2 settings; None skips it ("no Stage 2").
+        diffusion: how the diffusion model is called.
+        seed: torch seed for ray and view sampling.
+    """
+
+    stage1: Stage1Config | None = field(default_factory=Stage1Config)
+    stage2: Stage2Config | None = field(default_factory=Stage2Config)
+    diffusion: DiffusionSamplingConfig = field(default_factory=DiffusionSamplingConfig)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stage1 is None and self.stage2 is None:
+            raise ConfigError(
+                "`stage1` and `stage2` are both None: nothing would be relit. Keep at least one."
+            )
+
+    def with_ablation(self, ablation: Ablation) -> "RelightConfig":
+        """This config turned into one of the paper's ablations (§4.4).
+
+        Args:
+            ablation: "full", "no-stage1", "no-stage2", "sds-stage2" or "sds-only".
+
+        Raises:
+            ConfigError: on an unknown name, or when the stage it needs is None here.
+        """
+        s1 = self.stage1 or Stage1Config()
+        s2 = self.stage2 or Stage2Config()
+        if ablation not in ABLATIONS:
+            raise ConfigError(f"`ablation` is {ablation!r}; expected one of {list(ABLATIONS)}.")
+        match ablation:
+            case "full":
+                return replace(self, stage1=s1, stage2=replace(s2, loss="guidance"))
+            case "no-stage1":
+                return replace(self, stage1=None, stage2=replace(s2, loss="guidance"))
+            case "no-stage2":
+                return replace(self, stage1=s1, stage2=None)
+            case "sds-stage2":
+                return replace(self, stage1=s1, stage2=replace(s2, loss="sds"))
+            case "sds-only":
+                return replace(self, stage1=None, stage2=replace(s2, loss="sds"))
+            case _:
+                assert_never(ablation)
+
+
+def fit_preset(name: PresetName) -> FitConfig:
+    """A `FitConfig` by name: "paper" (the authors' settings) or "tiny" (CPU tests, seconds).
+
+    Example:
+        >>> fit_preset("paper").final_voxels == 300**3
+        True
+    """
+    match name:
+        case "paper":
+            return FitConfig()
+        case "tiny":
+            return FitConfig(
+                tensorf=TensoRFConfig(
+                    density_ranks=(4, 4, 4),
+                    appearance_ranks=(8, 8, 8),
+                    appearance_dim=12,
+                    mlp_hidden=32,
+                ),
+                scene=SceneBoxConfig(
+                    aabb_min=(-1.0, -1.0, -1.0), aabb_max=(1.0, 1.0, 1.0), near=0.5, far=4.0
+                ),
+                iterations=300,
+                batch_rays=1024,
+                initial_voxels=16**3,
+                final_voxels=32**3,
+                upsample_at=(100, 150),
+                alpha_mask_at=(100, 200),
+                lr_grid=0.05,
+                lr_network=3e-3,
+                sizing=GridSizingConfig(max_resolution=48, min_resolution=8),
+            )
+        case _:
+            raise ConfigError(f"`name` is {name!r}; expected 'paper' or 'tiny'.")
+
+
+def relight_preset(name: PresetName, ablation: Ablation = "full") -> RelightConfig:
+    """A `RelightConfig` by name and ablation.
+
+    Example:
+        >>> relight_preset("paper").stage2.t_start
+        0.4
+        >>> relight_preset("tiny", "no-stage2").stage2 is None
+        True
+    """
+    match name:
+        case "paper":
+            return RelightConfig().with_ablation(ablation)
+        case "tiny":
+            return RelightConfig(
+                stage1=Stage1Config(iterations=100, batch_rays=1024, lr_grid=0.05, lr_network=3e-3),
+                stage2=Stage2Config(iterations=6, lr_gamma=0.1 ** (1.0 / 20.0)),
+                diffusion=DiffusionSamplingConfig(num_inference_steps=10, batch_size=4),
+            ).with_ablation(ablation)
+        case _:
+            raise ConfigError(f"`name` is {name!r}; expected 'paper' or 'tiny'.")
