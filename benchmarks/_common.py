@@ -188,11 +188,8 @@ def write_results(
     name: str, payload: dict[str, Any], figure: Any, update_baseline: bool
 ) -> list[Path]:
     """Write the run's JSON and PNG (and the baseline's when asked); return the paths written."""
-    payload = {**payload}
-    payload["machine"] = {
-        **payload["machine"],
-        "load_average_end": [round(x, 2) for x in os.getloadavg()],
-    }
+    # Recorded on the caller's dict too, so that tables built from `payload` afterwards can show it.
+    payload["machine"]["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
     stamp = payload["machine"]["date_utc"].replace(":", "").replace("-", "")
     RUNS.mkdir(parents=True, exist_ok=True)
     targets = [RUNS / f"{name}-{stamp}"]
@@ -204,6 +201,23 @@ def write_results(
         figure.savefig(base.with_suffix(".png"), dpi=120, bbox_inches="tight")
         written += [base.with_suffix(".json"), base.with_suffix(".png")]
     return written
+
+
+def update_readme(name: str, markdown: str) -> bool:
+    """Replace the block between `<!-- BEGIN name -->` and `<!-- END name -->` in benchmarks/README.md.
+
+    Called on `--update-baseline`, so the README's "latest numbers" are the committed baseline's.
+    Returns False (and changes nothing) when the markers are missing.
+    """
+    readme = Path(__file__).resolve().parent / "README.md"
+    text = readme.read_text()
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+    if begin not in text or end not in text:
+        return False
+    head, rest = text.split(begin, 1)
+    _, tail = rest.split(end, 1)
+    readme.write_text(f"{head}{begin}\n{markdown.strip()}\n{end}{tail}")
+    return True
 
 
 def load_baseline(name: str) -> dict[str, Any] | None:

@@ -90,7 +90,7 @@ def speed_cpu(model: Any, quick: bool, seed: int) -> list[dict[str, Any]]:
     from gaffer_diffusion import RelightPipeline, RuntimeConfig, SamplingConfig
 
     pipe = RelightPipeline(model, RuntimeConfig(device="cpu", dtype="float32", attention="sdpa"))
-    reps = 2 if quick else 5
+    reps = 1 if quick else 3
     res = model.config.resolution
     rows: list[dict[str, Any]] = []
 
@@ -109,18 +109,24 @@ def speed_cpu(model: Any, quick: bool, seed: int) -> list[dict[str, Any]]:
         )
         common.log(f"  cpu {op:<34} b{batch}: min {s.min:.3f} s, median {s.median:.3f} s (n={s.n})")
 
+    # quick: one timed call per operation, with a single untimed warm-up call before the first one
+    # (allocator, oneDNN kernels); the full run warms up every operation and repeats it 3 times.
+    warm = 0 if quick else 1
     with torch.inference_mode():
-        for b in (1, 2) if quick else (1, 2, 4):
+        for k, b in enumerate((1, 2) if quick else (1, 2, 4)):
             kw = _unet_inputs(model, b, "cpu", torch.float32)
-            secs = _repeat(lambda kw=kw: model.unet(**kw), reps, "cpu")
+            secs = _repeat(
+                lambda kw=kw: model.unet(**kw), reps, "cpu", warmup=1 if k == 0 else warm
+            )
             record("unet_forward", b, b, secs, note="b2 = one CFG step of one image")
         cond = _conditions(1, res, seed)
-        secs = _repeat(lambda: pipe.encode(cond), reps, "cpu")
+        encoded: list[Any] = []
+        secs = _repeat(lambda: encoded.append(pipe.encode(cond)), reps, "cpu", warmup=warm)
         record("encode (3x VAE enc + CLIP)", 1, 1, secs)
-        enc = pipe.encode(cond)
+        enc = encoded[-1]
         z = torch.randn(1, 4, model.config.latent_size, model.config.latent_size)
         scale = model.config.vae.scaling_factor
-        secs = _repeat(lambda: model.vae.decode(z / scale), reps, "cpu")
+        secs = _repeat(lambda: model.vae.decode(z / scale), reps, "cpu", warmup=warm)
         record("vae_decode", 1, 1, secs)
         sampling = SamplingConfig(num_inference_steps=2, guidance_scale=3.0)
         secs = _repeat(lambda: pipe.sample(enc, sampling, seeds=[seed]), reps, "cpu", warmup=0)
@@ -320,6 +326,10 @@ def run_steps(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
     batch = 4
     reps = 3 if args.quick else 5
     common.log(f"{NAME_STEPS}: tiny model, {schedulers} x {steps}, batch {batch}")
+    # one thread: the tiny model gains nothing from more, and on shared cores a second OpenMP thread
+    # that loses its core stalls every parallel region (timings then vary 10x)
+    threads_before = torch.get_num_threads()
+    torch.set_num_threads(1)
     model = tiny_model(seed=args.seed)
     pipe = RelightPipeline(model, RuntimeConfig(device="cpu", dtype="float32"))
     cond = random_conditions(batch, model.config.resolution, seed=args.seed)
@@ -353,6 +363,7 @@ def run_steps(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
                 f"  {sched:<12} {n:>3} steps: {row['s_per_image'] * 1000:.1f} ms/img, "
                 f"PSNR {row['psnr_vs_ddim50']}, {perceptual.name} {row['perceptual_vs_ddim50']}"
             )
+    torch.set_num_threads(threads_before)
     payload = {
         "benchmark": NAME_STEPS,
         "quick": args.quick,
@@ -369,13 +380,14 @@ def run_steps(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
             else "standard LPIPS (AlexNet)",
             "timing_repetitions": reps,
             "timing_statistic": "minimum over repetitions (shared cores)",
+            "torch_threads": 1,
             "caveat": "random-init model: measures convergence to the 50-step DDIM solution, "
             "not relighting quality",
         },
         "machine": meta,
         "rows": rows,
     }
-    fig = steps_figure(rows, perceptual.name, meta)
+    fig = steps_figure(rows, perceptual.name, {**meta, "torch_threads": 1})
     return [str(p) for p in common.write_results(NAME_STEPS, payload, fig, args.update_baseline)]
 
 
@@ -403,7 +415,7 @@ def steps_figure(rows: list[dict[str, Any]], pname: str, meta: dict[str, Any]) -
     axes[1].set_ylabel(f"{pname} vs DDIM-50 (lower = closer)")
     for ax in axes:
         ax.set_xscale("log")
-        ax.set_xlabel("ms per image (CPU, batch 4; labels = steps)")
+        ax.set_xlabel("ms per image (CPU, 1 thread, batch 4; labels = steps)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.suptitle(

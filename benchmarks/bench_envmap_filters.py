@@ -321,9 +321,6 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], quick: bool, floor_de
         fontsize=8,
         transform=blended_transform_factory(ax_d.transAxes, ax_d.transData),
     )
-    ax_d.xaxis.set_major_formatter(FormatStrFormatter("%g"))
-    ax_d.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
-    ax_d.tick_params(axis="x", which="minor", labelsize=7)
     ax_p.axhline(floor_p, color="lightgrey", lw=0.8)
     ax_p.set_yscale("log")
     ax_p.set_ylabel("|P_out / P_in - 1|  (median, bars p10-p90)")
@@ -333,6 +330,9 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], quick: bool, floor_de
     )
     ax_d.set_yscale("log")
     ax_d.set_xscale("log")
+    ax_d.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+    ax_d.xaxis.set_minor_formatter(FormatStrFormatter("%g"))
+    ax_d.tick_params(axis="x", which="minor", labelsize=7)
     ax_d.set_xlabel("time per map, ms (median over repetitions; bars: interquartile range)")
     ax_d.set_ylabel("sun direction error, degrees (first moment)")
     ax_d.set_title("angle between the output's mean light direction and R d_sun", fontsize=9)
@@ -355,11 +355,41 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], quick: bool, floor_de
     return fig
 
 
+def readme_table(payload: dict[str, Any]) -> str:
+    """The baseline's numbers as the Markdown block of benchmarks/README.md."""
+    m = payload["machine"]
+    lines = [
+        f"Measured {m['date_utc']} on {m['device']}, torch {m['torch']} ({m['torch_threads']} threads); "
+        f"load average {m['load_average_start'][0]:.1f} at start, {m['load_average_end'][0]:.1f} at end; "
+        f"{payload['config']['suns']} suns, timing batches of {payload['config']['timing_batch']}.",
+        "",
+        "| pipeline | renorm | ms/map | power error median / p90 | direction error (first moment) "
+        "median / p90 | direction error (bright centroid) median |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in payload["results"]:
+        pe = r["power_error"]
+        de = r["direction_error_deg_first_moment"]
+        dc = r["direction_error_deg_bright_centroid"]
+        lines.append(
+            f"| {r['label']} | {'on' if r['renormalize'] else 'off'} | {r['ms_per_map']['median']:.1f} "
+            f"| {pe['median']:.1e} / {pe['p90']:.1e} | {de['median']:.3f}° / {de['p90']:.3f}° "
+            f"| {dc['median']:.3f}° |"
+        )
+    floor = payload["source_grid_direction_floor_deg"]
+    lines += [
+        "",
+        f"Direction floor of the 512x256 source grid itself: median {floor['median']:.3f}°. "
+        f"Area ss1 output identical to bilinear: {payload['area_ss1_output_identical_to_bilinear']}.",
+    ]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = common.parse_args(__doc__.splitlines()[0], argv)
     threads = common.set_threads(args.threads)
     meta = common.machine(threads)
-    n_suns, batch, reps = (8, 4, 3) if args.quick else (64, 16, 5)
+    n_suns, batch, reps = (6, 3, 3) if args.quick else (64, 16, 5)
     common.log(
         f"{NAME}: {meta['device']}, torch threads {threads}, quick={args.quick}, {n_suns} suns"
     )
@@ -421,6 +451,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     fig = plot(rows, meta, args.quick, float(np.median(floor)))
     written = common.write_results(NAME, payload, fig, args.update_baseline)
+    if args.update_baseline:
+        common.update_readme(NAME, readme_table(payload))
     baseline = common.load_baseline(NAME)
     base = {r["name"]: r["ms_per_map"]["median"] for r in baseline["results"]} if baseline else {}
     print(

@@ -295,6 +295,39 @@ def plot(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool) -> An
     return fig
 
 
+def readme_table(payload: dict[str, Any]) -> str:
+    """The baseline's numbers as the Markdown block of benchmarks/README.md."""
+    m = payload["machine"]
+    lines = [
+        f"Measured {m['date_utc']} on {m['device']}, torch {m['torch']} ({m['torch_threads']} threads), "
+        f"CUDA {m['cuda']}; load average {m['load_average_start'][0]:.1f} at start, "
+        f"{m['load_average_end'][0]:.1f} at end; {payload['config']['repetitions']} interleaved repetitions.",
+        "",
+        "| variant | maps/s (median) | min – max | × theirs (same threads) |",
+        "|---|---|---|---|",
+    ]
+    for r in payload["scenarios"]:
+        mps = r["maps_per_s"]
+        lines.append(
+            f"| {r['name']} | {mps['median']:.1f} | {mps['min']:.1f} – {mps['max']:.1f} "
+            f"| {r['ratio_vs_theirs']['median']:.2f} |"
+        )
+    t = payload["targets"]
+    fid = payload["fidelity_theirs_vs_compat"]
+    lines += [
+        "",
+        f"Targets: default ≥ {t['default_vs_theirs']['target']:g}× theirs, best measured "
+        f"{t['default_vs_theirs']['best_measured']:.2f}× (met: {t['default_vs_theirs']['met']}); "
+        f"compat ≥ {t['compat_vs_theirs']['target']:g}× theirs, worst measured "
+        f"{t['compat_vs_theirs']['worst_measured']:.2f}× (met: {t['compat_vs_theirs']['met']}); "
+        f"GPU: {t['gpu_maps_per_s'].get('note', t['gpu_maps_per_s'].get('best_measured'))}. "
+        f'Fidelity of the re-created authors\' pipeline against `compat="neural-gaffer"`: '
+        f"{fid['uint8_values_differing']} of {fid['uint8_values_compared']:,} uint8 values differ "
+        f"(max {fid['max_abs_difference_lsb']} LSB).",
+    ]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = common.parse_args(__doc__.splitlines()[0], argv)
     threads = common.set_threads(args.threads)
@@ -382,6 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     }
     fig = plot(results, meta, args.quick)
     written = common.write_results(NAME, payload, fig, args.update_baseline)
+    if args.update_baseline:
+        common.update_readme(NAME, readme_table(payload))
 
     baseline = common.load_baseline(NAME)
     base_rates = (

@@ -33,7 +33,9 @@ extensions = [
 
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "_scripts", "Thumbs.db", ".DS_Store"]
+# `_generated/*.md` are fragments pulled into pages with `{include}`, not pages of their own
+# (`_generated/api/*.md` are pages).
+exclude_patterns = ["_build", "_scripts", "_generated/*.md", "Thumbs.db", ".DS_Store"]
 templates_path: list[str] = []
 html_theme = "furo"
 html_title = f"gaffer {release}"

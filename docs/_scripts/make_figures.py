@@ -382,7 +382,7 @@ def bench_pages(out: Path) -> None:
         data = json.loads(pre.read_text())
         shutil.copyfile(pre.with_suffix(".png"), out / "bench" / "envmap_preprocess.png")
         rows = [
-            "| variant | maps/s (median) | min – max | × theirs (median of paired repetitions) |",
+            "| variant | maps/s (median) | min – max | × theirs with the same torch threads (paired median) |",
             "|---|---|---|---|",
         ]
         for r in data["scenarios"]:
@@ -403,7 +403,7 @@ def bench_pages(out: Path) -> None:
             f"{fid['uint8_values_compared'] - fid['uint8_values_differing']:,} of "
             f"{fid['uint8_values_compared']:,} uint8 values (largest difference "
             f"{fid['max_abs_difference_lsb']} LSB).\n\n"
-            "```{image} bench/envmap_preprocess.png\n:alt: Maps per second of each preprocessing variant.\n"
+            "```{image} _generated/bench/envmap_preprocess.png\n:alt: Maps per second of each preprocessing variant.\n"
             ":width: 100%\n```\n"
         )
     else:
@@ -434,7 +434,7 @@ def bench_pages(out: Path) -> None:
             + "\n".join(rows)
             + f"\n\nFloor set by the 512x256 source grid itself (first moment of the source map vs the "
             f"true sun direction): median {floor['median']:.3f}°.\n\n"
-            "```{image} bench/envmap_filters.png\n:alt: Power error and sun-direction error against time "
+            "```{image} _generated/bench/envmap_filters.png\n:alt: Power error and sun-direction error against time "
             "per map, for each rotation filter.\n:width: 100%\n```\n"
         )
     else:

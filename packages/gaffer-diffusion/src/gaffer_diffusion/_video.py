@@ -3,12 +3,14 @@
 Nothing is downloaded: MP4 needs `ffmpeg` on PATH or the `av` package (PyAV) already installed.
 """
 
+import importlib
+import importlib.util
 import logging
 import shutil
 import subprocess
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from PIL import Image
@@ -27,11 +29,7 @@ def mp4_encoder() -> Mp4Encoder | None:
     """The MP4 encoder available offline: an `ffmpeg` binary on PATH, PyAV, or None."""
     if shutil.which("ffmpeg") is not None:
         return "ffmpeg"
-    try:
-        import av  # noqa: F401
-    except ImportError:
-        return None
-    return "pyav"
+    return "pyav" if importlib.util.find_spec("av") is not None else None
 
 
 def _even(frame: np.ndarray) -> np.ndarray:
@@ -57,7 +55,7 @@ def _write_ffmpeg(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
 def _write_pyav(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
     import fractions
 
-    import av
+    av: Any = importlib.import_module("av")
 
     with av.open(str(path), mode="w") as container:
         stream = container.add_stream(

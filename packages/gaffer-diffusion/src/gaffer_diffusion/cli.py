@@ -214,7 +214,7 @@ def _read_map_png(path: Path, size: int) -> torch.Tensor:
     return torch.from_numpy(arr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
 
 
-def _pose(args: argparse.Namespace) -> object:
+def _pose(args: argparse.Namespace) -> Any:
     from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 
     if args.w2c is not None:

@@ -14,8 +14,9 @@ the authors' inference does. The cross-attention context is the CLIP image embed
 antialias), [-1, 1] -> [0, 1], OpenAI mean/std.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 import torch.nn.functional as F
@@ -250,7 +251,7 @@ def encode_conditions(
 
 def lighting_from_envmap(
     env: object,
-    w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"],
+    w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"] | Sequence[Any],
     *,
     size: int = 256,
     compat: CompatMode = "neural-gaffer",
@@ -264,7 +265,8 @@ def lighting_from_envmap(
 
     Args:
         env: a `gaffer_envmap.EnvironmentMap` or a `[He, We, 3]` linear radiance tensor.
-        w2c_blender: `[B, 3, 4]` or `[B, 3, 3]` world-to-camera matrices in Blender's camera convention.
+        w2c_blender: `[B, 3, 4]` or `[B, 3, 3]` world-to-camera matrices in Blender's camera convention,
+            or a sequence of `gaffer_envmap.W2CBlender` poses.
         size: side length of the square maps (the model resolution).
         compat: encoding mode of gaffer-envmap.
         spin_deg: extra spin of the light about world up (turntables), scalar or `[B]`.

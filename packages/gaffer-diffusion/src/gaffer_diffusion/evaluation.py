@@ -10,6 +10,10 @@ default, the encoding of the released checkpoint), and the prediction is scored 
 render with `gaffer_diffusion.metrics`: PSNR, SSIM and the perceptual distance, raw and channel-aligned
 (means over the whole image and over the object mask), per pair and averaged.
 
+Datasets converted from the authors' released validation layout (`gaffer-data convert-authors`, schema
+"gaffer.authors_dataset") are read too: there the target lighting comes as the authors' pre-encoded
+camera-frame LDR/HDR maps (`envmap_ldr/`, `envmap_hdr/`), used as they are (no env map, no `compat`).
+
 Images are scored the way the authors score them: full frame, object composited on a white background,
 prediction quantised to 8 bits. Renders at another resolution than the model's are resized (PIL bicubic)
 before use, for input and target alike.
@@ -18,12 +22,13 @@ gaffer-data is imported lazily, only here: `pip install "gaffer-diffusion[eval]"
 """
 
 import functools
+import json
 import logging
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NoReturn
 
 import numpy as np
 import torch
@@ -77,6 +82,24 @@ class EnvmapLighting:
 
 
 @dataclass(frozen=True, kw_only=True)
+class EncodedLightingFiles:
+    """A target lighting given as already-encoded camera-frame maps (the authors' release).
+
+    Attributes:
+        ldr: PNG of the LDR map E_L (8-bit, 256x256 in the release).
+        hdr: PNG of the log-normalised HDR map E_H.
+    """
+
+    ldr: Path
+    hdr: Path
+
+
+DatasetKind = Literal["render", "authors"]
+"""A gaffer-data render (`gaffer.render_dataset`) or a converted authors' layout
+(`gaffer.authors_dataset`)."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class EvalPair:
     """One (input render, target lighting) pair of the same object and view.
 
@@ -88,7 +111,7 @@ class EvalPair:
         input_image: RGBA PNG of the input render (sRGB, straight alpha).
         target_image: RGBA PNG of the ground-truth render under the target lighting.
         mask: the view's 8-bit object mask, or None (the target's alpha channel is used).
-        lighting: the target lighting.
+        lighting: the target lighting: an env map to encode, or the authors' encoded maps.
     """
 
     name: str
@@ -98,7 +121,7 @@ class EvalPair:
     input_image: Path
     target_image: Path
     mask: Path | None
-    lighting: EnvmapLighting
+    lighting: EnvmapLighting | EncodedLightingFiles
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -151,8 +174,6 @@ class DatasetEvaluation:
 
     def to_json(self) -> str:
         """Settings, timing and the full report as one JSON document."""
-        import json
-
         return json.dumps(
             {
                 "settings": self.settings,
@@ -208,13 +229,15 @@ def dataset_pairs(
     envmap_dirs: Sequence[str | Path] = (),
     limit: int | None = None,
 ) -> tuple[EvalPair, ...]:
-    """Every (input, target lighting) pair of a gaffer-data rendered dataset.
+    """Every (input, target lighting) pair of a gaffer-data dataset (rendered or converted).
 
     Args:
-        root: the dataset folder (`gaffer_data.open_dataset`).
+        root: the dataset folder: a render (`gaffer_data.open_dataset`) or a converted authors' split
+            (`gaffer_data.open_authors_dataset`); the kind is read from its `dataset.json`.
         input_lighting: the lighting index of the input render of each view, or "area" for the
             area-light render (then every lighting is a target).
-        envmap_dirs: folders to search for env maps whose recorded path no longer exists.
+        envmap_dirs: folders to search for env maps whose recorded path no longer exists (renders
+            only; converted datasets carry encoded maps).
         limit: keep only the first `limit` pairs (in object, view, lighting order).
 
     Returns:
@@ -233,6 +256,93 @@ def dataset_pairs(
             f"`input_lighting` is {input_lighting!r}; expected a lighting index >= 0 or 'area'."
         )
     root = Path(root)
+    if dataset_kind(root) == "authors":
+        pairs = _authors_pairs(gaffer_data, root, input_lighting, limit)
+    else:
+        pairs = _render_pairs(gaffer_data, root, input_lighting, envmap_dirs, limit)
+    if not pairs:
+        raise DatasetError(
+            f"`{root}` yields no (input, target) pair: it needs complete objects (with manifest.json) "
+            "and at least two lightings per view (or `input_lighting='area'`)."
+        )
+    return tuple(pairs)
+
+
+def dataset_kind(root: str | Path) -> DatasetKind:
+    """ "authors" when `root/dataset.json` declares a converted authors' layout, else "render"."""
+    path = Path(root) / "dataset.json"
+    if not path.is_file():
+        return "render"
+    try:
+        schema = json.loads(path.read_text(encoding="utf-8")).get("schema")
+    except (OSError, ValueError, AttributeError):
+        return "render"  # the reader reports the malformed file with its own message
+    from gaffer_data.dataset import AUTHORS_DATASET_SCHEMA
+
+    return "authors" if schema == AUTHORS_DATASET_SCHEMA else "render"
+
+
+def _missing_input(
+    object_id: str, view: int, input_lighting: InputLighting, have: object
+) -> NoReturn:
+    if input_lighting == "area":
+        raise DatasetError(
+            f"`{object_id}` view {view} has no area-light render; pass a lighting index as "
+            "`input_lighting` (`--input-lighting 0`)."
+        )
+    raise DatasetError(
+        f"`{object_id}` view {view} has no lighting {input_lighting} (it has {have}); choose "
+        "another `input_lighting`."
+    )
+
+
+def _authors_pairs(
+    gaffer_data: Any, root: Path, input_lighting: InputLighting, limit: int | None
+) -> list[EvalPair]:
+    pairs: list[EvalPair] = []
+    for obj in gaffer_data.open_authors_dataset(root).iter_objects():
+        for view in obj.views:
+            by_index = {lit.lighting_index: lit for lit in view.lit}
+            if input_lighting == "area":
+                if view.area_png is None:
+                    _missing_input(obj.object_id, view.index, input_lighting, sorted(by_index))
+                input_png, input_tag = obj.path(view.area_png), "area"
+            else:
+                if input_lighting not in by_index:
+                    _missing_input(obj.object_id, view.index, input_lighting, sorted(by_index))
+                input_png, input_tag = (
+                    obj.path(by_index[input_lighting].png),
+                    f"{input_lighting:03d}",
+                )
+            for lit in view.lit:
+                if lit.lighting_index == input_lighting:
+                    continue
+                pairs.append(
+                    EvalPair(
+                        name=f"{obj.object_id}/{view.index:03d}_{input_tag}_to_{lit.lighting_index:03d}",
+                        object_id=obj.object_id,
+                        view_index=view.index,
+                        target_lighting=lit.lighting_index,
+                        input_image=input_png,
+                        target_image=obj.path(lit.png),
+                        mask=None,
+                        lighting=EncodedLightingFiles(
+                            ldr=obj.path(lit.envmap_ldr), hdr=obj.path(lit.envmap_hdr)
+                        ),
+                    )
+                )
+                if limit is not None and len(pairs) >= limit:
+                    return pairs
+    return pairs
+
+
+def _render_pairs(
+    gaffer_data: Any,
+    root: Path,
+    input_lighting: InputLighting,
+    envmap_dirs: Sequence[str | Path],
+    limit: int | None,
+) -> list[EvalPair]:
     dirs = tuple(Path(d) for d in envmap_dirs)
     resolve = functools.lru_cache(maxsize=None)(
         lambda source, name: _resolve_envmap(source, name, root, dirs)
@@ -241,20 +351,14 @@ def dataset_pairs(
     for obj in gaffer_data.open_dataset(root).iter_objects():
         poses = obj.poses()
         for view in obj.views:
+            by_index = {lit.lighting_index: lit for lit in view.lit}
             if input_lighting == "area":
                 if view.area is None:
-                    raise DatasetError(
-                        f"`{obj.object_id}` view {view.index} has no area-light render; pass a "
-                        "lighting index as `input_lighting` (`--input-lighting 0`)."
-                    )
+                    _missing_input(obj.object_id, view.index, input_lighting, sorted(by_index))
                 input_png, input_tag = obj.path(view.area.png), "area"
             else:
-                by_index = {lit.lighting_index: lit for lit in view.lit}
                 if input_lighting not in by_index:
-                    raise DatasetError(
-                        f"`{obj.object_id}` view {view.index} has no lighting {input_lighting} "
-                        f"(it has {sorted(by_index)}); choose another `input_lighting`."
-                    )
+                    _missing_input(obj.object_id, view.index, input_lighting, sorted(by_index))
                 input_png = obj.path(by_index[input_lighting].png)
                 input_tag = f"{input_lighting:03d}"
             for lit in view.lit:
@@ -281,13 +385,8 @@ def dataset_pairs(
                     )
                 )
                 if limit is not None and len(pairs) >= limit:
-                    return tuple(pairs)
-    if not pairs:
-        raise DatasetError(
-            f"`{root}` yields no (input, target) pair: it needs complete objects (with manifest.json) "
-            "and at least two lightings per view (or `input_lighting='area'`)."
-        )
-    return tuple(pairs)
+                    return pairs
+    return pairs
 
 
 def _read_rgba(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -331,8 +430,24 @@ def _augmented_envmap(
     return env
 
 
+def _read_map(path: Path, size: int) -> Tensor:
+    """`[1, 3, size, size]` encoded lighting map in [0, 1] (PIL bilinear when resized, as the authors)."""
+    try:
+        with Image.open(path) as im:
+            rgb = im.convert("RGB")
+            if rgb.size != (size, size):
+                rgb = rgb.resize((size, size), Image.Resampling.BILINEAR)
+            arr = np.asarray(rgb, np.float32) / 255.0
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"Could not read the lighting map `{path}`: {exc}.") from exc
+    return torch.from_numpy(arr).permute(2, 0, 1)[None].contiguous()
+
+
 def pair_lighting(pairs: Sequence[EvalPair], size: int, compat: CompatMode) -> LightingMaps:
     """Camera-frame LDR/HDR maps of each pair's target lighting, `[B, 3, size, size]`.
+
+    Env maps are augmented, rotated into the view's camera frame and encoded with `compat`; the
+    authors' pre-encoded maps are read as they are (resized if the model resolution differs).
 
     Raises:
         DatasetError: when a map cannot be read or augmented.
@@ -340,6 +455,10 @@ def pair_lighting(pairs: Sequence[EvalPair], size: int, compat: CompatMode) -> L
     ldr, hdr = [], []
     for p in pairs:
         lt = p.lighting
+        if isinstance(lt, EncodedLightingFiles):
+            ldr.append(_read_map(lt.ldr, size))
+            hdr.append(_read_map(lt.hdr, size))
+            continue
         try:
             env = _augmented_envmap(lt.source, lt.flip, lt.yaw_step, lt.num_steps, lt.strength)
         except (OSError, ValueError) as exc:
@@ -359,7 +478,14 @@ def _to_chw(arrs: list[np.ndarray]) -> Tensor:
 
 
 def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
-    """Round to the 8-bit grid, as writing and re-reading a PNG would (the authors score PNGs)."""
+    """Round to the 8-bit grid, as writing and re-reading a PNG would (the authors score PNGs).
+
+    Example:
+        >>> import torch
+        >>> x = quantize_8bit(torch.full((1, 3, 1, 1), 0.301))
+        >>> round(float(x[0, 0, 0, 0]) * 255, 3)
+        77.0
+    """
     return (images.clamp(0.0, 1.0) * 255.0).round() / 255.0
 
 
@@ -461,7 +587,9 @@ def evaluate_dataset(
         "latent_mode": s.latent_mode,
         "seed": config.seed,
         "batch_size": config.batch_size,
-        "lighting_compat": config.compat,
+        "lighting": "authors' pre-encoded maps"
+        if isinstance(pairs[0].lighting, EncodedLightingFiles)
+        else f"env maps encoded by gaffer-envmap, compat={config.compat!r}",
         "device": pipe.runtime.device,
         "dtype": pipe.runtime.dtype,
         "prediction": "8-bit quantised, full image on white (authors' protocol)",

@@ -106,7 +106,9 @@ class Cameras:
                 "camera-to-world rigid transforms."
             )
         rot = c2w[:, :3, :3]
-        ortho = (rot @ rot.transpose(1, 2) - torch.eye(3, dtype=torch.float64)).abs().amax(dim=(1, 2))
+        ortho = (
+            (rot @ rot.transpose(1, 2) - torch.eye(3, dtype=torch.float64)).abs().amax(dim=(1, 2))
+        )
         det = torch.linalg.det(rot)
         bad = ((ortho > 1e-3) | (det < 0)).nonzero().flatten().tolist()
         if bad:

@@ -283,7 +283,9 @@ class DiffusionSamplingConfig:
             )
         _non_negative("guidance_scale", self.guidance_scale)
         if self.compat not in ("neural-gaffer", "default"):
-            raise ConfigError(f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'.")
+            raise ConfigError(
+                f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'."
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -379,7 +381,9 @@ class Stage2Config:
         for name in ("lr_grid", "lr_network", "lr_gamma", "sds_weight"):
             _positive(name, getattr(self, name))
         if self.encode_mode not in ("mode", "sample"):
-            raise ConfigError(f"`encode_mode` is {self.encode_mode!r}; expected 'mode' or 'sample'.")
+            raise ConfigError(
+                f"`encode_mode` is {self.encode_mode!r}; expected 'mode' or 'sample'."
+            )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -165,18 +165,24 @@ class SampleWeightCache:
         """Memory held by the cache."""
         return sum(
             t.numel() * t.element_size()
-            for t in (self.xyz_world, self.weights, self.ray_offsets, self.dirs_world, self.background)
+            for t in (
+                self.xyz_world,
+                self.weights,
+                self.ray_offsets,
+                self.dirs_world,
+                self.background,
+            )
         )
 
-    def gather(
-        self, ray_ids: Int[Tensor, " K"]
-    ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    def gather(self, ray_ids: Int[Tensor, " K"]) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """Samples of the chosen rays: `(xyz [m, 3], dirs [m, 3], weights [m], local_ray [m])`."""
         ids = ray_ids.to(self.ray_offsets.device)
         start = self.ray_offsets[ids]
         counts = self.ray_offsets[ids + 1] - start  # [K]
         local = torch.repeat_interleave(torch.arange(ids.shape[0], device=ids.device), counts)
-        first = torch.cumsum(counts, 0) - counts  # position of each ray's first sample in the output
+        first = (
+            torch.cumsum(counts, 0) - counts
+        )  # position of each ray's first sample in the output
         within = torch.arange(local.shape[0], device=ids.device) - first[local]
         idx = start[local] + within
         return self.xyz_world[idx], self.dirs_world[ids][local], self.weights[idx], local

@@ -164,6 +164,14 @@ class TensoRFVM(nn.Module):
         self.alpha_volume: Tensor | None = None  # [1, 1, Z, Y, X] in {0, 1}
         self.alpha_aabb: Tensor | None = None  # [2, 3]
 
+    def _apply(self, fn, recurse=True):  # type: ignore[no-untyped-def]
+        """Move/cast the alpha mask with the module (it is not a registered buffer: its shape varies)."""
+        super()._apply(fn, recurse)
+        if self.alpha_volume is not None and self.alpha_aabb is not None:
+            self.alpha_volume = fn(self.alpha_volume)
+            self.alpha_aabb = fn(self.alpha_aabb)
+        return self
+
     # ------------------------------------------------------------------ geometry of the grid
     @property
     def aabb_size(self) -> Float[Tensor, " 3"]:
@@ -199,14 +207,14 @@ class TensoRFVM(nn.Module):
         plane_coef, line_coef = [], []
         for i, (a, b) in enumerate(MAT_MODE):
             c = VEC_MODE[i]
-            coord_plane = xyz_norm[:, [a, b]].view(1, n, 1, 2)  # (x -> W = grid[a], y -> H = grid[b])
+            coord_plane = xyz_norm[:, [a, b]].view(
+                1, n, 1, 2
+            )  # (x -> W = grid[a], y -> H = grid[b])
             coord_line = torch.stack(
                 [torch.zeros_like(xyz_norm[:, c]), xyz_norm[:, c]], dim=-1
             ).view(1, n, 1, 2)
             # [1, R, N, 1] -> [R, N]
-            plane_coef.append(
-                F.grid_sample(planes[i], coord_plane, align_corners=True).view(-1, n)
-            )
+            plane_coef.append(F.grid_sample(planes[i], coord_plane, align_corners=True).view(-1, n))
             line_coef.append(F.grid_sample(lines[i], coord_line, align_corners=True).view(-1, n))
         return plane_coef, line_coef
 
@@ -286,17 +294,18 @@ class TensoRFVM(nn.Module):
 
     @torch.no_grad()
     def dense_alpha(self, grid_size: GridSize | None = None, chunk: int = 65536) -> Tensor:
-        """Opacity `1 - exp(-sigma * step * distance_scale)` at every grid point, `[X, Y, Z]`.
+        """Opacity `1 - exp(-sigma * step)` at every grid point, `[X, Y, Z]` (TensoRF's `compute_alpha`).
 
-        The alpha of one ray-march step, so the mask threshold means "a sample here would matter".
-        (TensoRF omits `distance_scale` here, which makes its mask 25x more aggressive.)
+        As in TensoRF, without `distance_scale`: the render uses sigma * delta * 25, so the mask keeps
+        points whose one-step render alpha reaches 25 x `alpha_mask_threshold`. The threshold (1e-4) is
+        calibrated for this form; with the factor it keeps the untrained field's whole box.
         """
         gs = grid_size or self.grid_size
         axes = [torch.linspace(0, 1, n, device=self.aabb.device) for n in gs]
         t = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1)  # [X, Y, Z, 3]
         xyz = (self.aabb[0] * (1 - t) + self.aabb[1] * t).reshape(-1, 3)
         alpha = torch.empty(xyz.shape[0], device=xyz.device)
-        scale = self.step_size * self.config.distance_scale
+        scale = self.step_size
         for s in range(0, xyz.shape[0], chunk):
             pts = xyz[s : s + chunk]
             keep = self.sample_alpha_mask(pts) > 0
@@ -437,7 +446,9 @@ def _init_vm(
         planes.append(
             nn.Parameter(scale * torch.randn((1, ranks[i], gs[b], gs[a]), generator=generator))
         )
-        lines.append(nn.Parameter(scale * torch.randn((1, ranks[i], gs[c], 1), generator=generator)))
+        lines.append(
+            nn.Parameter(scale * torch.randn((1, ranks[i], gs[c], 1), generator=generator))
+        )
     return nn.ParameterList(planes), nn.ParameterList(lines)
 
 

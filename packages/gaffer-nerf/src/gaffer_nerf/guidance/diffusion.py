@@ -1,0 +1,286 @@
+"""The relighting diffusion model as a prior for 3D: relit views (Stage 1), guidance targets (Stage 2), SDS.
+
+Built on gaffer-diffusion's public inference API (`RelightPipeline`, `make_scheduler`,
+`EncodedConditions`, `lighting_from_envmap`). The denoising loop of `denoise_from` is the pipeline's
+(same UNet input `[z_t, E(x), E(E_H), E(E_L)]`, same CFG with the CLIP embedding and the three
+conditioning latents zeroed in the unconditional branch), started at an intermediate noise level t*
+instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started from pure noise it equals
+`RelightPipeline.sample` to float precision.
+"""
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion import (
+    EncodedConditions,
+    LightingMaps,
+    RelightingConditions,
+    RelightPipeline,
+    SamplingConfig,
+    lighting_from_envmap,
+    make_scheduler,
+)
+from gaffer_nerf.configs import DiffusionSamplingConfig, Stage2Config
+from gaffer_nerf.errors import ShapeError
+
+ProgressCallback = Callable[[int, int], None]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ViewConditions:
+    """Per-view conditioning of the relighting model, encoded once.
+
+    Attributes:
+        lighting: `[V, 3, R, R]` camera-frame LDR/HDR maps of the target lighting.
+        encoded: the VAE latents of each input view and its maps, and the CLIP embeddings.
+    """
+
+    lighting: LightingMaps
+    encoded: EncodedConditions
+
+    @property
+    def num_views(self) -> int:
+        """V."""
+        return self.encoded.batch_size
+
+
+def t_star(step: int, total: int, config: Stage2Config) -> float:
+    """Stage-2 noise level t* (fraction of the 1000 training timesteps) at `step` of `total`.
+
+    "exponential" (paper §4.1): t* = t_start (t_end / t_start)^(k / (K - 1)), 0.4 -> 0.05.
+    "authors": t* = t_end + (t_start - t_end)(1 - exp(-(K - k))), which reproduces what their code does
+    (reference §6: "about 0.38-0.4 for ~497 of 500"): here 498 of 500 steps are within 0.38-0.40. It is a reconstruction of
+    the schedule's shape, not their formula.
+
+    Example:
+        >>> from gaffer_nerf.configs import Stage2Config
+        >>> c = Stage2Config()
+        >>> round(t_star(0, 500, c), 3), round(t_star(499, 500, c), 3)
+        (0.4, 0.05)
+        >>> a = Stage2Config(t_schedule="authors")
+        >>> sum(t_star(k, 500, a) >= 0.38 for k in range(500))
+        498
+    """
+    k, n = step, max(total, 1)
+    match config.t_schedule:
+        case "exponential":
+            if n == 1:
+                return config.t_start
+            return config.t_start * (config.t_end / config.t_start) ** (k / (n - 1))
+        case "authors":
+            return config.t_end + (config.t_start - config.t_end) * (1.0 - math.exp(-(n - k)))
+
+
+class DiffusionGuide:
+    """The diffusion model, wrapped for the 3D relighting stages.
+
+    Args:
+        pipeline: a `RelightPipeline` (real weights, or `gaffer_diffusion.testing.tiny_model()`).
+        sampling: steps, guidance scale, batch size, lighting encoding and seeds.
+    """
+
+    def __init__(self, pipeline: RelightPipeline, sampling: DiffusionSamplingConfig) -> None:
+        self.pipeline = pipeline
+        self.sampling = sampling
+        self.model = pipeline.model
+        for module in (self.model.unet, self.model.vae, self.model.image_encoder):
+            module.requires_grad_(False)
+
+    @property
+    def resolution(self) -> int:
+        """Image side the model works at (256 for the released checkpoint)."""
+        return int(self.model.config.resolution)
+
+    def to_model_resolution(self, images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 R R"]:
+        """Resize (bilinear, antialiased, differentiable) to the model's square resolution."""
+        r = self.resolution
+        if tuple(images.shape[2:]) == (r, r):
+            return images
+        return F.interpolate(
+            images, size=(r, r), mode="bilinear", antialias=True, align_corners=False
+        )
+
+    def lighting(self, envmap: object, w2c_blender: Float[Tensor, "V 3 4"]) -> LightingMaps:
+        """Camera-frame LDR/HDR maps of `envmap` for every view (gaffer-envmap's `encode_lighting`)."""
+        return lighting_from_envmap(
+            envmap, w2c_blender, size=self.resolution, compat=self.sampling.compat
+        )
+
+    @torch.no_grad()
+    def encode_views(
+        self, images: Float[Tensor, "V 3 H W"], lighting: LightingMaps
+    ) -> ViewConditions:
+        """Encode the input views with the target lighting once (batched by `sampling.batch_size`)."""
+        x = self.to_model_resolution(images).clamp(0, 1)
+        parts = []
+        b = self.sampling.batch_size
+        for s in range(0, x.shape[0], b):
+            cond = RelightingConditions(
+                image=x[s : s + b],
+                lighting=LightingMaps(ldr=lighting.ldr[s : s + b], hdr=lighting.hdr[s : s + b]),
+            )
+            parts.append(self.pipeline.encode(cond))
+        enc = EncodedConditions(
+            image_latents=torch.cat([p.image_latents for p in parts]),
+            hdr_latents=torch.cat([p.hdr_latents for p in parts]),
+            ldr_latents=torch.cat([p.ldr_latents for p in parts]),
+            clip_embeds=torch.cat([p.clip_embeds for p in parts]),
+        )
+        return ViewConditions(lighting=lighting, encoded=enc)
+
+    @torch.no_grad()
+    def relight_views(
+        self, conditions: ViewConditions, *, callback: ProgressCallback | None = None
+    ) -> Float[Tensor, "V 3 R R"]:
+        """Stage 1's targets: every view relit from pure noise (50 DDIM steps, CFG 3 by default).
+
+        View i uses seed `sampling.seed + i`, so results do not depend on the batch size.
+        """
+        cfg = SamplingConfig(
+            num_inference_steps=self.sampling.num_inference_steps,
+            guidance_scale=self.sampling.guidance_scale,
+        )
+        out = []
+        b, v = self.sampling.batch_size, conditions.num_views
+        for s in range(0, v, b):
+            idx = list(range(s, min(s + b, v)))
+            res = self.pipeline.sample(
+                conditions.encoded.select(idx), cfg, seeds=[self.sampling.seed + i for i in idx]
+            )
+            out.append(res.images.float().cpu())
+            if callback is not None:
+                callback(idx[-1] + 1, v)
+        return torch.cat(out)
+
+    def _timesteps(self, t_frac: float) -> tuple[object, Tensor]:
+        sched = make_scheduler("ddim", self.model.config.scheduler)
+        sched.set_timesteps(self.sampling.num_inference_steps, device=self.pipeline.device)
+        ts = sched.timesteps
+        limit = t_frac * sched.config.num_train_timesteps
+        below = ts[ts <= limit]
+        return sched, below if below.numel() > 0 else ts[-1:]
+
+    def _eps(self, z: Tensor, t: Tensor, enc: EncodedConditions, guidance: float) -> Tensor:
+        """CFG noise prediction, as `RelightPipeline`: uncond zeroes CLIP and the 3 latents."""
+        cond = enc.concat_latents()  # [B, 12, h, w]  E(x), E(E_H), E(E_L)
+        ctx = enc.clip_embeds  # [B, 1, D]
+        if guidance == 1.0:
+            return self.model.unet(torch.cat([z, cond], dim=1), t, encoder_hidden_states=ctx).sample
+        z_in = torch.cat([z, z])
+        unet_in = torch.cat(
+            [z_in, torch.cat([cond, torch.zeros_like(cond)])], dim=1
+        )  # [2B, 16, h, w]
+        ctx_in = torch.cat([ctx, torch.zeros_like(ctx)])
+        eps_c, eps_u = self.model.unet(unet_in, t, encoder_hidden_states=ctx_in).sample.chunk(2)
+        return eps_u + guidance * (eps_c - eps_u)
+
+    def encode_image(
+        self,
+        images: Float[Tensor, "B 3 R R"],
+        *,
+        mode: str = "mode",
+        generator: torch.Generator | None = None,
+    ) -> Float[Tensor, "B 4 h w"]:
+        """Scaled latent z_0 = E(x) x 0.18215 of images in [0, 1] (differentiable w.r.t. `images`)."""
+        x = (images * 2.0 - 1.0).to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+        dist = self.model.vae.encode(x).latent_dist
+        z = dist.mode() if mode == "mode" else dist.sample(generator=generator)
+        return z * self.model.config.vae.scaling_factor
+
+    def decode(self, z: Float[Tensor, "B 4 h w"]) -> Float[Tensor, "B 3 R R"]:
+        """Images in [0, 1] from scaled latents (as the pipeline decodes)."""
+        x = self.model.vae.decode(z / self.model.config.vae.scaling_factor).sample
+        return (x.float() / 2.0 + 0.5).clamp(0.0, 1.0)
+
+    @torch.no_grad()
+    def denoise_from(
+        self,
+        images: Float[Tensor, "B 3 R R"],
+        encoded: EncodedConditions,
+        t_frac: float,
+        *,
+        generator: torch.Generator | None = None,
+        encode_mode: str = "mode",
+        noise: Tensor | None = None,
+    ) -> Float[Tensor, "B 3 R R"]:
+        """Stage 2's target x_relit(t*): encode, noise to t*, DDIM-denoise with CFG, decode (Eq. 3).
+
+        Args:
+            images: rendered views in [0, 1] at the model resolution.
+            encoded: their views' conditioning (input photo, target lighting).
+            t_frac: t* as a fraction of the training timesteps; the DDIM steps of the
+                `num_inference_steps` schedule at or below it are run.
+            generator: RNG for the noise (CPU generator).
+            encode_mode: VAE posterior "mode" or "sample".
+            noise: explicit `[B, 4, h, w]` noise instead of drawing it.
+
+        Returns:
+            The denoised images in [0, 1], float32.
+        """
+        if images.ndim != 4 or images.shape[1] != 3:
+            raise ShapeError("images", tuple(images.shape), "[B, 3, R, R]")
+        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+        sched, ts = self._timesteps(t_frac)
+        z0 = self.encode_image(images, mode=encode_mode, generator=generator)
+        if noise is None:
+            noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32)
+        noise = noise.to(device=z0.device, dtype=z0.dtype)
+        z = sched.add_noise(z0, noise, ts[:1].repeat(z0.shape[0]))  # type: ignore[attr-defined]
+        return self._ddim(sched, z, ts, enc)
+
+    def _ddim(self, sched: object, z: Tensor, ts: Tensor, enc: EncodedConditions) -> Tensor:
+        g = self.sampling.guidance_scale
+        for t in ts:
+            eps = self._eps(sched.scale_model_input(z, t), t, enc, g)  # type: ignore[attr-defined]
+            z = sched.step(eps, t, z, eta=0.0).prev_sample  # type: ignore[attr-defined]
+        return self.decode(z)
+
+    @torch.no_grad()
+    def sample_from_noise(
+        self, encoded: EncodedConditions, noise: Float[Tensor, "B 4 h w"]
+    ) -> Float[Tensor, "B 3 R R"]:
+        """The full schedule from pure noise through this class's loop (the reference-twin check)."""
+        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+        sched, _ = self._timesteps(1.0)
+        ts = sched.timesteps  # type: ignore[attr-defined]
+        z = (
+            noise.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+            * sched.init_noise_sigma
+        )  # type: ignore[attr-defined]
+        return self._ddim(sched, z, ts, enc)
+
+    def sds_loss(
+        self,
+        images: Float[Tensor, "B 3 R R"],
+        encoded: EncodedConditions,
+        config: Stage2Config,
+        *,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Score distillation (DreamFusion): gradient w(t)(eps_hat - eps) on the latent, as a loss.
+
+        loss = 0.5 || z_0 - sg(z_0 - g) ||^2 / B with g = weight (1 - alpha_bar_t)(eps_hat(z_t) - eps),
+        so d loss / d z_0 = g; it reaches the rendered image through the VAE encoder.
+        """
+        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+        sched = make_scheduler("ddim", self.model.config.scheduler)
+        n_train = int(sched.config.num_train_timesteps)  # type: ignore[attr-defined]
+        lo, hi = config.sds_t_range
+        t = torch.randint(int(lo * n_train), int(hi * n_train) + 1, (1,), generator=generator)
+        t = t.to(self.pipeline.device)
+        z0 = self.encode_image(images, mode=config.encode_mode, generator=generator)
+        noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32).to(z0)
+        with torch.no_grad():
+            z_t = sched.add_noise(z0.detach(), noise, t.repeat(z0.shape[0]))  # type: ignore[attr-defined]
+            eps = self._eps(z_t, t, enc, config.sds_guidance_scale)
+            alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)  # type: ignore[attr-defined]
+            grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)
+            grad = torch.nan_to_num(grad)
+        target = (z0 - grad).detach()
+        return 0.5 * F.mse_loss(z0.float(), target.float(), reduction="sum") / z0.shape[0]

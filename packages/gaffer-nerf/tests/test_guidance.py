@@ -1,0 +1,84 @@
+"""The diffusion prior for 3D: reference-twin loop, SDEdit targets, SDS gradients, perceptual fallback."""
+
+import pytest
+import torch
+
+import gaffer_nerf.guidance.perceptual as perceptual_mod
+from gaffer_diffusion import RelightPipeline, SamplingConfig
+from gaffer_diffusion.errors import MetricUnavailableError
+from gaffer_diffusion.testing import random_conditions, tiny_model
+from gaffer_nerf.configs import DiffusionSamplingConfig, Stage2Config
+from gaffer_nerf.guidance import (
+    DiffusionGuide,
+    PerceptualUnavailableWarning,
+    load_perceptual_loss,
+)
+
+
+@pytest.fixture(scope="module")
+def guide() -> DiffusionGuide:
+    return DiffusionGuide(
+        RelightPipeline(tiny_model()), DiffusionSamplingConfig(num_inference_steps=6, batch_size=2)
+    )
+
+
+def test_loop_from_pure_noise_equals_the_pipeline(guide: DiffusionGuide) -> None:
+    cond = random_conditions(2, 64, seed=1)
+    enc = guide.pipeline.encode(cond)
+    noise = torch.randn(2, 4, 8, 8, generator=torch.Generator().manual_seed(0))
+    ref = guide.pipeline.sample(enc, SamplingConfig(num_inference_steps=6), latents=noise).images
+    torch.testing.assert_close(guide.sample_from_noise(enc, noise), ref, atol=1e-5, rtol=1e-5)
+
+
+def test_relight_views_are_batch_invariant(guide: DiffusionGuide) -> None:
+    cond = random_conditions(3, 64, seed=2)
+    views = guide.encode_views(cond.image, cond.lighting)
+    a = guide.relight_views(views)
+    other = DiffusionGuide(
+        guide.pipeline, DiffusionSamplingConfig(num_inference_steps=6, batch_size=3)
+    )
+    torch.testing.assert_close(other.relight_views(views), a, atol=1e-5, rtol=1e-5)
+    assert a.shape == (3, 3, 64, 64)
+
+
+def test_denoise_from_t_star(guide: DiffusionGuide) -> None:
+    cond = random_conditions(1, 64, seed=3)
+    enc = guide.pipeline.encode(cond)
+    x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(4))
+    out = guide.denoise_from(x, enc, 0.4, generator=torch.Generator().manual_seed(0))
+    assert out.shape == (1, 3, 64, 64) and bool(torch.isfinite(out).all())
+    # t* below the first step of the schedule still runs the last step (never a no-op)
+    low = guide.denoise_from(x, enc, 1e-4, generator=torch.Generator().manual_seed(0))
+    assert bool(torch.isfinite(low).all())
+    sched, ts = guide._timesteps(0.4)
+    full = sched.timesteps  # 6 "leading" steps: 834, 667, 500, 333, 167, 1
+    assert ts.tolist() == [t for t in full.tolist() if t <= 400] == [333, 167, 1]
+
+
+def test_sds_gradient_reaches_the_image(guide: DiffusionGuide) -> None:
+    cond = random_conditions(1, 64, seed=5)
+    enc = guide.pipeline.encode(cond)
+    x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(6)).requires_grad_()
+    loss = guide.sds_loss(
+        x, enc, Stage2Config(loss="sds"), generator=torch.Generator().manual_seed(0)
+    )
+    loss.backward()
+    assert x.grad is not None and float(x.grad.abs().sum()) > 0
+
+
+def test_perceptual_loss_available_and_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
+    loss = load_perceptual_loss()
+    assert loss.name == "stlpips-alex" and loss.available
+    x = torch.rand(1, 3, 64, 64, requires_grad=True)
+    d = loss(x, torch.rand(1, 3, 64, 64))
+    d.backward()
+    assert x.grad is not None
+
+    def fail(*_: object) -> None:
+        raise MetricUnavailableError("no weights here")
+
+    monkeypatch.setattr(perceptual_mod, "load_perceptual", fail)
+    with pytest.warns(PerceptualUnavailableWarning, match="L1 term only"):
+        off = load_perceptual_loss()
+    assert off.name is None and off.unavailable_reason == "no weights here" and not off.available
+    assert float(off(x, x.detach())) == 0.0
