@@ -117,3 +117,15 @@ def test_bad_options() -> None:
         encode_lighting(env, orbit_w2c_blender(0, 0), compat="authors")  # type: ignore[arg-type]
     with pytest.raises(GafferEnvmapError, match="size"):
         encode_lighting(env, orbit_w2c_blender(0, 0), size=0)
+
+
+@pytest.mark.parametrize("compat", ["default", "neural-gaffer"])
+@pytest.mark.parametrize("peak", [6.5e4, 1e30, 1e38, 3.4e38])
+def test_extreme_hdr_peak_stays_finite(compat: str, peak: float) -> None:
+    """A sun near float32's max: 10 E would overflow to inf and inf * 0 = NaN in the normalisation."""
+    env = smooth_random_map(32, seed=3).radiance_linear.copy()
+    env[5, 10] = peak
+    enc = encode_lighting(env, orbit_w2c_blender(30, 10), size=16, compat=compat)  # type: ignore[arg-type]
+    hdr = np.asarray(enc.hdr, dtype=np.float64)
+    assert np.isfinite(hdr).all() and hdr.min() >= 0 and hdr.max() <= 1
+    assert hdr.max() > 0 and float(enc.ldr.max()) > 0

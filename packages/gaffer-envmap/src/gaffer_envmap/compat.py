@@ -14,7 +14,10 @@ The released checkpoint was trained on maps made this way, so it should be fed m
 5. floor(v * 255) to uint8, then PIL bilinear resize of the 2:1 map to size x size (an anisotropic squash).
 
 What we keep from our own code: the direction grid is cached per size and the rotation is batched; both
-change speed only, not a single output value (tests compare against `testing.reference_neural_gaffer`).
+change speed only, not a single output value (tests compare against `testing.reference_neural_gaffer`,
+which follows the reference step by step in torch). Against an independent numpy re-implementation of the
+same steps (benchmarks/bench_envmap_preprocess.py) 15 of 12.6M uint8 values differ by one, from float
+rounding in the bilinear weights and the power at a uint8 boundary; none differs by more.
 An all-black map would divide by zero in step 4; here its HDR map is all zero, with a warning.
 """
 
@@ -77,7 +80,9 @@ def encode_neural_gaffer(rotated: Tensor, size: int = 256) -> tuple[np.ndarray, 
     """Steps 4-5: uint8 `[B, size, size, 3]` LDR and HDR maps from rotated `[B, He, We, 3]` radiance."""
     e = rotated.to(torch.float32)
     ldr = torch.clip(e, 0, 1) ** (1 / 2.2)
-    log = torch.log1p(10 * e)
+    # Clamp as the default mode does (encode.HDR_MAX): 10 E overflows float32 above 3.4e37 and the
+    # authors' division would give NaN there; below it (every real map) this changes no value.
+    log = torch.log1p(10 * e.clamp(max=3.4e38 / 40))
     peak = log.amax(dim=(1, 2, 3), keepdim=True)
     if bool((peak <= 0).any()):
         warnings.warn(

@@ -7,7 +7,7 @@ Two modes:
 - `compat="neural-gaffer"`: the authors' exact pipeline (`compat.py`), uint8-quantised, for the released
   checkpoint.
 - `compat="default"`: rotation straight to the `size x size` grid with area filtering in linear space
-  (power-exact), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
+  (power within ~1% at the default supersampling, exact with `renormalize=True`), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
   normaliser taken from the SOURCE map (its peak after the same pre-filter), so it does not change as the
   camera turns, and the relative brightness of different maps survives... up to each map's own peak.
   See docs/encodings.md for a side-by-side figure.
@@ -38,6 +38,9 @@ from gaffer_envmap.rotate import (
 Compat = Literal["default", "neural-gaffer"]
 LDR_GAMMA = 2.2
 HDR_GAIN = 10.0
+HDR_MAX = float(torch.finfo(torch.float32).max) / (4 * HDR_GAIN)
+"""Radiance is clamped here before `log1p(10 E)`: 10 E would overflow float32 to inf (and inf * 0 = NaN
+in the normalisation) for E > 3.4e37. No physical map comes near it (half-float EXR tops out at 65504)."""
 
 
 @dataclass(frozen=True)
@@ -75,10 +78,8 @@ def hdr_encode(radiance_linear: Tensor, peak: Tensor) -> Tensor:
 
     `peak` broadcasts against `radiance_linear` (e.g. `[B, 1, 1, 1]`).
     """
-    e = torch.nan_to_num(
-        radiance_linear.clamp_min(0), nan=0.0, posinf=torch.finfo(torch.float32).max
-    )
-    denom = torch.log1p(HDR_GAIN * peak.clamp_min(0))
+    e = torch.nan_to_num(radiance_linear.clamp(0, HDR_MAX), nan=0.0)
+    denom = torch.log1p(HDR_GAIN * peak.clamp(0, HDR_MAX))
     safe = torch.where(denom > 0, denom, torch.ones_like(denom))
     return torch.where(denom > 0, torch.log1p(HDR_GAIN * e) / safe, torch.zeros_like(e)).clamp(0, 1)
 
@@ -90,9 +91,9 @@ def _encode_finite(rotated: Tensor, peak: Tensor) -> tuple[Tensor, Tensor]:
     fast on CPU.
     """
     ldr = rotated.clamp(0, 1).log_().mul_(1 / LDR_GAMMA).exp_()
-    denom = torch.log1p(HDR_GAIN * peak.clamp_min(0))
+    denom = torch.log1p(HDR_GAIN * peak.clamp(0, HDR_MAX))
     inv = torch.where(denom > 0, 1 / torch.where(denom > 0, denom, torch.ones_like(denom)), 0.0)
-    hdr = rotated.clamp_min(0).mul_(HDR_GAIN).log1p_().mul_(inv).clamp_(0, 1)
+    hdr = rotated.clamp(0, HDR_MAX).mul_(HDR_GAIN).log1p_().mul_(inv).clamp_(0, 1)
     return ldr, hdr
 
 

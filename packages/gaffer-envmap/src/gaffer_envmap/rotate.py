@@ -8,8 +8,8 @@ direction, rotate it into the world, and look the world map up there.
 Unlike the authors' pipeline (reference section 4; reproduced in `compat.py`), this one
 - writes straight to the requested output grid (no full-resolution intermediate, no resize afterwards);
 - wraps the u = 0/1 seam and crosses the poles correctly (the row above row 0 is row 0 turned by half);
-- is exact where it should be: coordinates within 1e-3 px of a pixel centre snap to it, so an identity
-  pose returns the input bit for bit and a yaw by whole pixels equals `np.roll`;
+- is exact where it should be: an identity pose, or a yaw by whole pixels (same size in and out), is
+  detected and done as a permutation, so it returns the input bit for bit / equals `np.roll`;
 - filters by area: "area" averages s x s stratified bilinear sub-samples per output pixel, weighted by
   their solid angle, after a conservative (power-exact) pre-downsample of the source to about s samples
   per output pixel (a tent-filtered box over the footprint: measured median power error 1.5% for 0.5-2
@@ -38,7 +38,6 @@ from gaffer_envmap.resample import resize_conservative_torch
 
 Filter = Literal["area", "bilinear"]
 Pairing = Literal["outer", "zip"]
-_SNAP_PX = 1e-3
 
 
 def as_radiance_batch(
