@@ -51,6 +51,9 @@ autodoc_default_options = {
     "show-inheritance": True,
     "member-order": "bysource",
 }
+# `bpy` exists only as a CPython 3.11 wheel of several hundred MB (extra `gaffer-data[render]`); the
+# docs build does not install it, so the few modules that import it at the top are read with a stand-in.
+autodoc_mock_imports = ["bpy", "mathutils"]
 autodoc_typehints = "description"
 autodoc_typehints_format = "short"
 autodoc_preserve_defaults = True
@@ -74,13 +77,23 @@ if os.environ.get("GAFFER_DOCS_INTERSPHINX") == "1":
     }
 
 nitpick_ignore_regex = [
-    # Types of numpy, torch and the standard library: resolved only through intersphinx.
+    # Types of numpy, torch, the standard library and the other third-party libraries in our signatures:
+    # resolved only through intersphinx (or not at all: jaxtyping, diffusers and transformers publish no
+    # inventory that covers their internal module paths).
     (
         r"py:(class|obj|data|func|meth|attr|exc)",
-        r"(numpy|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging)\..+",
+        r"(numpy|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging|jaxtyping|diffusers"
+        r"|transformers|safetensors|accelerate|tqdm|concurrent\.futures|subprocess|types)\..+",
     ),
+    # `from torch import Tensor` annotations render as the bare name.
+    (r"py:class", r"Tensor|ndarray"),
+    # jaxtyping shape strings (`Float[Tensor, "B 3 H W"]`): autodoc splits them into would-be class
+    # names at the spaces; every piece carries a quote.
+    (r"py:class", r".*'.*"),
 ]
 nitpick_ignore = [
+    # A private record type in the signature of a public dataset method (reported upstream).
+    ("py:class", "gaffer_diffusion.training.dataset._ViewEntry"),
     (
         "py:class",
         "gaffer_envmap.atomic.T",
@@ -96,7 +109,38 @@ def _generate(app) -> None:
     make_figures.main(out=DOCS / "_generated", quiet=True)
 
 
+def _python_domain_preferring_own_package():
+    """The Python domain, but an ambiguous short name resolves inside the referring package first.
+
+    Every package has its own `errors.py` (`ConfigError`, `ShapeError`, `MissingDependencyError`, ...),
+    so the name `ConfigError` in a `Raises:` section of `gaffer_nerf.configs` matches one class per
+    package. The reference means its own package's class; only a name still ambiguous after that is an
+    error (Sphinx's warning). A bare name that matches nothing exactly (a type hint autodoc could not
+    qualify) is looked up inside the referring package the same way.
+    """
+    from sphinx.domains.python import PythonDomain
+
+    class GafferPythonDomain(PythonDomain):
+        def find_obj(self, env, modname, classname, name, type, searchmode=0):
+            matches = super().find_obj(env, modname, classname, name, type, searchmode)
+            if not matches and modname and searchmode == 0 and "." not in name:
+                # A bare class name from a type hint that autodoc could not qualify: look for it
+                # anywhere in the referring package.
+                package = modname.split(".")[0] + "."
+                fuzzy = super().find_obj(env, modname, classname, name, type, 1)
+                matches = [m for m in fuzzy if m[0].startswith(package)]
+            if len(matches) > 1 and modname:
+                package = modname.split(".")[0] + "."
+                own = [m for m in matches if m[0].startswith(package)]
+                if own:
+                    matches = own
+            return matches
+
+    return GafferPythonDomain
+
+
 def setup(app) -> dict[str, object]:
+    app.add_domain(_python_domain_preferring_own_package(), override=True)
     app.connect("builder-inited", _generate)
     # Before napoleon (priority 500): read the Markdown-flavoured docstrings as reST (see the module).
     docstring_compat = importlib.import_module("docstring_compat")

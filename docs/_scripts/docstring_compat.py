@@ -9,10 +9,14 @@ else alone:
 - a single-backtick span becomes an inline literal (double backticks), with an escaped space where reST
   needs a boundary that Markdown does not (`x`s -> ``x``\\ s); roles (:py:func:`x`) and hyperlink
   references (`x`_) are untouched;
-- a bullet list that follows a paragraph line gets the blank line reST requires before it;
+- a bullet list that follows a paragraph line, a nested list, and a paragraph right after a list get the
+  blank lines reST requires around them;
+- a fenced code block (```) becomes a literal block;
 - a pipe table (header row, |---| separator row, body rows) becomes a `list-table` directive;
 - a `|` outside code becomes `\\|` (reST reads |x| as a substitution reference);
-- a data/attribute docstring whose first line is prose containing a colon is re-wrapped so that the colon
+- a Markdown indented code block (a blank line, then lines indented 4 or more past the paragraph above)
+  becomes a literal block;
+- a data/attribute/property docstring whose first line is prose containing a colon is re-wrapped so that the colon
   starts line 2 (the same paragraph); napoleon would read "text before the colon" as the attribute's type.
 
 Lines of doctests (from `>>>` to the next blank line) and of literal blocks (after a line ending in `::`)
@@ -42,7 +46,7 @@ def _inline(text: str) -> str:
         out.append(chunk)
         out.append(
             ("" if before in _BEFORE_OK else "\\ ")
-            + f"``{m.group(1)}``"
+            + f"``{m.group(1).strip()}``"
             + ("" if after in _AFTER_OK else "\\ ")
         )
         pos = m.end()
@@ -84,6 +88,29 @@ def convert(lines: list[str], what: str = "") -> list[str]:
             in_doctest = bool(stripped)
             i += 1
             continue
+        if stripped.startswith("```"):
+            # A fenced code block: a "::" literal block of the lines up to the closing fence.
+            j = i + 1
+            body = []
+            while j < n and not lines[j].strip().startswith("```"):
+                body.append(lines[j])
+                j += 1
+            if out and out[-1].strip():
+                out.append("")
+            out += [f"{indent}::", ""] + [
+                f"{indent}    {b[len(indent) :]}" if b.strip() else "" for b in body
+            ]
+            out.append("")
+            i = j + 1
+            continue
+        block_indent = _code_block_indent(out, len(indent)) if stripped else None
+        if block_indent is not None:
+            # Markdown's indented code block: a "::" paragraph (which renders as nothing) makes it
+            # a reST literal block, copied verbatim up to the next line at the paragraph's indent.
+            out += [" " * block_indent + "::", "", line]
+            literal_indent = block_indent
+            i += 1
+            continue
         if _TABLE_ROW.match(line) and i + 1 < n and _TABLE_SEP.match(lines[i + 1]):
             rows = [line]
             j = i + 2
@@ -95,21 +122,25 @@ def convert(lines: list[str], what: str = "") -> list[str]:
             out += _table(rows, indent)
             i = j
             continue
-        if _BULLET.match(line) and out and out[-1].strip():
+        if stripped and out and out[-1].strip():
             prev = out[-1]
             prev_indent = len(prev) - len(prev.lstrip())
-            # A bullet right after a paragraph line (not after another item or its continuation).
-            if (
-                not _BULLET.match(prev)
-                and prev_indent <= len(indent)
-                and not _in_list(out, len(indent))
-            ):
+            item = _nearest_item_indent(out)
+            if _BULLET.match(line):
+                # A list starts after a paragraph line, a nested list starts inside an item, or a
+                # nested list ends: reST wants a blank line in each case (not between siblings).
+                if (item is None and prev_indent <= len(indent)) or (
+                    item is not None and item != len(indent)
+                ):
+                    out.append("")
+            elif item is not None and len(indent) <= item:
+                # A paragraph right after a list (not the item's own continuation line).
                 out.append("")
         out.append(_inline(line))
         if stripped.endswith("::"):
             literal_indent = len(indent)
         i += 1
-    if what in ("data", "attribute") and out:
+    if what in ("data", "attribute", "property") and out:
         head = out[0]
         colon = head.find(": ")
         if colon > 0 and " " in head[:colon].strip() and "`" not in head[:colon]:
@@ -120,15 +151,35 @@ def convert(lines: list[str], what: str = "") -> list[str]:
     return out
 
 
-def _in_list(out: list[str], indent: int) -> bool:
-    """True when the lines above (back to a blank line) belong to a bullet list at this indentation."""
+def _code_block_indent(out: list[str], indent: int) -> int | None:
+    """The paragraph's indentation when a line at `indent` opens a Markdown indented code block, else None.
+
+    That is: a blank line, then a line indented at least 4 more than the last paragraph line above it
+    (which is neither a doctest line, nor a bullet item, nor a line ending in "::").
+    """
+    if not out or out[-1].strip():
+        return None
+    prev = next((p for p in reversed(out) if p.strip()), None)
+    if prev is None:
+        return None
+    prev_indent = len(prev) - len(prev.lstrip())
+    text = prev.strip()
+    if indent < prev_indent + 4 or text.endswith("::") or text.startswith((">>>", "...")):
+        return None
+    if _BULLET.match(prev) or text.startswith(".."):
+        return None
+    return prev_indent
+
+
+def _nearest_item_indent(out: list[str]) -> int | None:
+    """Indentation of the closest bullet item above (back to a blank line), or None."""
     for prev in reversed(out):
         if not prev.strip():
-            return False
+            return None
         m = _BULLET.match(prev)
-        if m and len(m.group(1)) == indent:
-            return True
-    return False
+        if m:
+            return len(m.group(1))
+    return None
 
 
 def process_docstring(app, what, name, obj, options, lines) -> None:
@@ -154,4 +205,36 @@ if __name__ == "__main__":
     assert convert(["| a | b |", "|---|---|", "| `c` | d |"])[0] == ".. list-table::"
     assert convert(["The pose: camera right"], "data") == ["The", "pose: camera right"]
     assert convert(["int: the count"], "data")[0] == "int: the count"
+    assert convert(["Usage:", "", "    cmd --flag", "      (note)", "", "Text"]) == [
+        "Usage:",
+        "",
+        "::",
+        "",
+        "    cmd --flag",
+        "      (note)",
+        "",
+        "Text",
+    ]
+    assert convert(["- item", "", "      more"])[-1] == "      more"
+    assert convert(["- a:", "  - b", "  - c", "- d", "Text"]) == [
+        "- a:",
+        "",
+        "  - b",
+        "  - c",
+        "",
+        "- d",
+        "",
+        "Text",
+    ]
+    assert convert(["Tree:", "", "```", "a/", "  b  # `c`", "```", "After"]) == [
+        "Tree:",
+        "",
+        "::",
+        "",
+        "    a/",
+        "      b  # `c`",
+        "",
+        "After",
+    ]
+    assert _inline("`EVENT ` then") == "``EVENT`` then"
     print("docstring_compat: self-checks passed")

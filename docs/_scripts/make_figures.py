@@ -12,11 +12,14 @@ Called by docs/conf.py at `builder-inited`; also runnable alone:
   normaliser of each mode as the camera turns.
 - `tutorial/`: outputs and figures of `tutorial.py`, executed section by section.
 - `bench_*.md` + `bench/*.png`: the committed benchmark baselines (benchmarks/results/).
-- `api/*.md`: one autodoc page per public module of gaffer_envmap; `api_index.md`: the re-exports.
+- (a check, no output) every `gaffer-*` command in the pages' shell blocks parses (`check_commands.py`).
+- `api/<package>.md`: each package's re-exports; `api/<package>/<module>.md`: one autodoc page per public
+  module (subpackages included) of the four packages.
 """
 
 import argparse
 import contextlib
+import importlib
 import io
 import json
 import pkgutil
@@ -440,43 +443,325 @@ def bench_pages(out: Path) -> None:
     else:
         text = "*No committed baseline yet: run `python benchmarks/bench_envmap_filters.py --update-baseline`.*\n"
     _write(out / "bench_filters.md", text)
+    _write(out / "bench_data_render.md", bench_data_render(out))
+    _write(out / "bench_diffusion.md", bench_diffusion(out))
+    _write(out / "bench_nerf.md", bench_nerf(out))
+    shown = {
+        "envmap_preprocess",
+        "envmap_filters",
+        "data_render",
+        "diffusion_speed",
+        "diffusion_steps",
+        "nerf",
+    }
+    _write(out / "bench_other.md", bench_other_charts(out, shown))
+
+
+def _chart(out: Path, name: str, alt: str) -> str:
+    """Copy `results/<name>.png` beside the generated pages; the MyST block that shows it."""
+    shutil.copyfile(BENCH / f"{name}.png", out / "bench" / f"{name}.png")
+    return f"```{{image}} _generated/bench/{name}.png\n:alt: {alt}\n:width: 100%\n```\n"
+
+
+def _missing(script: str) -> str:
+    return f"*No committed baseline yet: run `python benchmarks/{script} --update-baseline`.*\n"
+
+
+def _render_setting(p: dict) -> str:
+    den = "denoiser" if p["denoise"] else "no denoiser"
+    ada = f", adaptive threshold {p['adaptive_threshold']:g}" if p["adaptive_threshold"] else ""
+    return f"{p['resolution']} px, {p['samples']} spp, {den}{ada}"
+
+
+def bench_data_render(out: Path) -> str:
+    """The Cycles render benchmark: headline numbers, chart, every setting."""
+    path = BENCH / "data_render.json"
+    if not path.exists():
+        return _missing("bench_data_render.py")
+    d = json.loads(path.read_text())
+    a, f = d["authors_setting_128spp_denoised"], d["fastest_reaching_authors_quality"]
+    rows = [
+        "| resolution | spp | denoiser | adaptive threshold | s / image | PSNR vs reference (dB) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for p in d["points"]:
+        rows.append(
+            f"| {p['resolution']} | {p['samples']} | {'on' if p['denoise'] else 'off'} "
+            f"| {p['adaptive_threshold']:g} | {p['seconds_per_image']:.2f} | {p['psnr_db']:.1f} |"
+        )
+    return (
+        f"**Measured on:** {_machine_line(d['machine'])}; Blender Cycles on {d['cores']} cores, "
+        f"{d['images_per_setting']} images per setting.\n\n"
+        f"Headline: the authors' setting ({_render_setting(a)}) takes {a['seconds_per_image']:.2f} s "
+        f"per image at {a['psnr_db']:.1f} dB against the high-sample reference; the fastest setting that "
+        f"reaches that quality is {_render_setting(f)}: {f['seconds_per_image']:.2f} s per image at "
+        f"{f['psnr_db']:.1f} dB ({a['seconds_per_image'] / f['seconds_per_image']:.1f}x faster).\n\n"
+        + _chart(out, "data_render", "Cycles seconds per image against PSNR, per sample count.")
+        + "\n"
+        + "\n".join(rows)
+        + "\n"
+    )
+
+
+def bench_diffusion(out: Path) -> str:
+    """The diffusion benchmarks: full-size model latency (CPU) and sampler steps vs accuracy."""
+    text = ""
+    path = BENCH / "diffusion_speed.json"
+    if path.exists():
+        d = json.loads(path.read_text())
+        cfg = d["config"]
+        rows = ["| operation (CPU) | batch | seconds (min) |", "|---|---|---|"]
+        for r in d["cpu"]:
+            rows.append(f"| {r['op']} | {r['batch']} | {r['seconds']['min']:.2f} |")
+        text += (
+            "### Full-size model latency\n\n"
+            f"**Measured on:** {_machine_line(d['machine'])}; {cfg['model']}, {cfg['cpu_dtype']}, "
+            f"attention {cfg['attention']}.\n\n"
+            + "\n".join(rows)
+            + f"\n\nGPU part: {d['cuda']}.\n\n"
+            + _chart(out, "diffusion_speed", "Per-operation CPU latency of the full-size model.")
+            + "\n"
+        )
+    else:
+        text += _missing("bench_diffusion.py")
+    path = BENCH / "diffusion_steps.json"
+    if path.exists():
+        d = json.loads(path.read_text())
+        cfg = d["config"]
+        by: dict[str, dict[int, dict]] = {}
+        for r in d["rows"]:
+            by.setdefault(r["scheduler"], {})[r["steps"]] = r
+        steps = sorted({r["steps"] for r in d["rows"]})
+        head = "| steps | " + " | ".join(f"{s}: PSNR (dB) / ms per image" for s in by) + " |"
+        rows = [head, "|---" * (len(by) + 1) + "|"]
+        for n in steps:
+            cells = []
+            for s in by:
+                r = by[s].get(n)
+                psnr = r and r["psnr_vs_ddim50"]
+                cells.append(
+                    "-"
+                    if r is None
+                    else f"{'reference' if psnr == 'inf' else f'{psnr:.1f}'} / "
+                    f"{1000 * r['s_per_image']:.0f}"
+                )
+            rows.append(f"| {n} | " + " | ".join(cells) + " |")
+        text += (
+            "### Sampler steps\n\n"
+            f"**Measured on:** {_machine_line(d['machine'])}; {cfg['model']}, batch {cfg['batch']}, "
+            f"guidance {cfg['guidance_scale']:g}; accuracy = distance to {cfg['reference']}.\n\n"
+            + "\n".join(rows)
+            + f"\n\nCaveat recorded with the numbers: {cfg['caveat']}.\n\n"
+            + _chart(
+                out, "diffusion_steps", "Seconds per image against PSNR to DDIM-50, per sampler."
+            )
+        )
+    else:
+        text += _missing("bench_diffusion.py")
+    return text
+
+
+def bench_nerf(out: Path) -> str:
+    """The NeRF benchmark: grid sizing (fit) and the relighting stages."""
+    path = BENCH / "nerf.json"
+    if not path.exists():
+        return _missing("bench_nerf.py")
+    d = json.loads(path.read_text())
+    rows = ["| fit | seconds | final grid | grid MiB | test PSNR (dB, input lighting) |"]
+    rows.append("|---|---|---|---|---|")
+    for r in d["fits"]:
+        rows.append(
+            f"| {r['label']} | {r['seconds']:.1f} | {'x'.join(map(str, r['final_grid']))} "
+            f"| {r['grid_mib']:.3f} | {r['test_psnr_db']:.2f} |"
+        )
+    rel = d["relight"]
+    full = rel["full_relight_random_model"]
+    phases = ", ".join(f"{k} {v:.2f} s" for k, v in full["phase_seconds"].items())
+    s1 = [
+        "| Stage 1, oracle relit views | seconds | test PSNR (dB, target lighting) |",
+        "|---|---|---|",
+    ]
+    s1.append(
+        f"| input field, not relit | - | {rel['input_field_vs_target']['test_psnr_db']:.2f} |"
+    )
+    for r in rel["stage1_oracle"]:
+        s1.append(
+            f"| {r['iterations']} iterations | {r['seconds']:.1f} | {r['test_psnr_db']:.2f} |"
+        )
+    fits = {r["label"]: r for r in d["fits"]}
+    fixed = fits.get("fixed 32^3")
+    best = max(d["fits"], key=lambda r: r["test_psnr_db"])
+    headline = (
+        f"Headline: the tiny preset's fixed 32^3 grid fits in {fixed['seconds']:.1f} s to "
+        f"{fixed['test_psnr_db']:.2f} dB; the best test PSNR here is {best['label']} "
+        f"({best['test_psnr_db']:.2f} dB in {best['seconds']:.1f} s, {best['grid_mib']:.3f} MiB). "
+        if fixed
+        else ""
+    )
+    last = rel["stage1_oracle"][-1]
+    return (
+        f"**Measured on:** {_machine_line(d['machine'])}; {d['config']['scene']}; one run per row.\n\n"
+        + headline
+        + f"Stage 1 with oracle relit views lifts the test PSNR under the target lighting from "
+        f"{rel['input_field_vs_target']['test_psnr_db']:.1f} dB (not relit) to "
+        f"{last['test_psnr_db']:.1f} dB in {last['seconds']:.1f} s ({last['iterations']} iterations).\n\n"
+        + _chart(out, "nerf", "Fit seconds against test PSNR per grid; relighting phase timings.")
+        + "\n"
+        + "\n".join(rows)
+        + f"\n\nThe whole `relight_field` with the tiny random diffusion model (timings only): {phases}; "
+        f"total {full['total_seconds']:.1f} s.\n\n" + "\n".join(s1) + "\n"
+    )
+
+
+def bench_other_charts(out: Path, shown: set[str]) -> str:
+    """Any committed chart that no section above shows (so the page always gathers every chart)."""
+    text = ""
+    for png in sorted(BENCH.glob("*.png")):
+        if png.stem in shown:
+            continue
+        meta = {}
+        if png.with_suffix(".json").exists():
+            meta = json.loads(png.with_suffix(".json").read_text()).get("machine", {})
+        where = f"**Measured on:** {_machine_line(meta)}.\n\n" if "device" in meta else ""
+        text += f"### `{png.stem}`\n\n{where}" + _chart(out, png.stem, png.stem) + "\n"
+    return text or "*(none)*\n"
 
 
 # --------------------------------------------------------------------------------------------------
 # API pages
 # --------------------------------------------------------------------------------------------------
-def public_modules() -> list[str]:
+API_PACKAGES = {
+    "gaffer_envmap": (
+        "gaffer-envmap",
+        "The lighting math: env-map I/O, named lat-long conventions, camera poses, rotation into a camera "
+        "frame, the model's LDR / log-HDR encodings, solid-angle-exact resampling, augmentation and "
+        "spherical harmonics.",
+    ),
+    "gaffer_data": (
+        "gaffer-data",
+        "Object filtering, Blender Cycles rendering of relighting datasets (`gaffer_data.render`, the only "
+        "place that imports `bpy`; mocked for these pages) and the pure, typed dataset reader.",
+    ),
+    "gaffer_diffusion": (
+        "gaffer-diffusion",
+        "The relighting diffusion model: configs, model construction and loading, conditioning, the "
+        "sampling pipeline and schedulers, metrics, evaluation, training (extra `[train]`) and the CLI.",
+    ),
+    "gaffer_nerf": (
+        "gaffer-nerf",
+        "Relighting radiance fields: TensoRF fitting with fixed or footprint-sized grids, the diffusion "
+        "guide, Stage 1 (relit views) and Stage 2 (guided refinement), evaluation and the CLI.",
+    ),
+}
+
+
+def public_modules(package: str = "gaffer_envmap") -> list[str]:
+    """Every public module of `package`, subpackages included (no `_private` part, no `__main__`)."""
+    root = importlib.import_module(package)
     return sorted(
-        f"gaffer_envmap.{m.name}"
-        for m in pkgutil.iter_modules(ge.__path__)
-        if not m.name.startswith("_") and m.name != "__main__"
+        m.name
+        for m in pkgutil.walk_packages(root.__path__, f"{package}.")
+        if not any(part.startswith("_") for part in m.name.split(".")[1:])
     )
 
 
+def _private_reexports(package: str, seen: set[int]) -> list[str]:
+    """autodoc directives for the names `package` re-exports from its private (`_x`) modules.
+
+    Those modules have no page of their own, so the objects are documented under the package's name
+    (autodoc records the private path as the canonical name, so references to it resolve here too).
+    An object re-exported at several levels is documented once, at the first one asked (`seen`).
+    """
+    mod = importlib.import_module(package)
+    out = []
+    for name in getattr(mod, "__all__", ()):
+        obj = getattr(mod, name, None)
+        home = getattr(obj, "__module__", None) or ""
+        if not (isinstance(obj, type) or callable(obj)) or not home.startswith(package + "."):
+            continue
+        if not any(part.startswith("_") for part in home[len(package) + 1 :].split(".")):
+            continue
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        directive = "autoclass" if isinstance(obj, type) else "autofunction"
+        out.append(f".. {directive}:: {package}.{name}")
+    return out
+
+
+def _api_index(package: str) -> str:
+    """A table of the package's re-exports (`__all__`), each linked to the module that defines it."""
+    root = importlib.import_module(package)
+    rows = ["| name | kind | defined in |", "|---|---|---|"]
+    for name in getattr(root, "__all__", ()):
+        if name.startswith("__"):
+            continue
+        obj = getattr(root, name)
+        mod = getattr(obj, "__module__", None)
+        if isinstance(obj, type) or callable(obj):
+            kind = "class" if isinstance(obj, type) else "function"
+            if mod is None or not mod.startswith(package):
+                rows.append(f"| `{name}` | {kind} | |")
+                continue
+            if "._" in mod:  # documented under a package's name (see `_private_reexports`)
+                role = "py:class" if kind == "class" else "py:func"
+                rows.append(f"| {{{role}}}`~{mod}.{name}` | {kind} | a private module |")
+                continue
+            role = "py:class" if kind == "class" else "py:func"
+            rows.append(f"| {{{role}}}`~{mod}.{name}` | {kind} | {{py:mod}}`{mod}` |")
+        else:
+            home = next(
+                (
+                    m
+                    for m in public_modules(package)
+                    if name in vars(importlib.import_module(m))
+                    and vars(importlib.import_module(m))[name] is obj
+                ),
+                None,
+            )
+            where = f"{{py:mod}}`{home}`" if home else ""
+            rows.append(f"| `{name}` | {type(obj).__name__} | {where} |")
+    return "\n".join(rows) + "\n"
+
+
 def api_pages(out: Path) -> None:
-    """One page per public module, and a table of the package's re-exports linking to them."""
+    """Per package: a page with its re-exports and one autodoc page per public module."""
     api = out / "api"
     api.mkdir(parents=True, exist_ok=True)
-    modules = public_modules()
-    for stale in api.glob("*.md"):
-        if stale.stem not in modules:
+    wanted: set[Path] = set()
+    seen: set[int] = set()
+    for package, (dist, blurb) in API_PACKAGES.items():
+        modules = public_modules(package)
+        for mod in modules:
+            page = api / package / f"{mod}.md"
+            wanted.add(page)
+            # A subpackage's `__all__` re-exports its modules' names: document only what it defines,
+            # so every object has exactly one page (the re-exports are listed on the package page).
+            is_pkg = hasattr(importlib.import_module(mod), "__path__")
+            opts = "   :ignore-module-all:\n" if is_pkg else ""
+            extra = "".join(f"\n{d}\n" for d in _private_reexports(mod, seen)) if is_pkg else ""
+            _write(page, f"# `{mod}`\n\n```{{eval-rst}}\n.. automodule:: {mod}\n{opts}{extra}```\n")
+        page = api / f"{package}.md"
+        wanted.add(page)
+        _write(
+            page,
+            f"# {dist}\n\n{blurb}\n\n`import {package}` re-exports the names below; each module "
+            "of the package has a page of its own, generated from its docstrings.\n\n"
+            + _api_index(package)
+            + (
+                "\n## Defined in private modules\n\n```{eval-rst}\n"
+                + "\n\n".join(private)
+                + "\n```\n"
+                if (private := _private_reexports(package, seen))
+                else ""
+            )
+            + "\n```{toctree}\n:maxdepth: 1\n:caption: Modules\n\n"
+            + "\n".join(f"{package}/{mod}" for mod in modules)
+            + "\n```\n",
+        )
+    for stale in api.rglob("*.md"):
+        if stale not in wanted:
             stale.unlink()
-    for mod in modules:
-        _write(api / f"{mod}.md", f"# `{mod}`\n\n```{{eval-rst}}\n.. automodule:: {mod}\n```\n")
-    rows = ["| name | kind | defined in |", "|---|---|---|"]
-    for name in ge.__all__:
-        obj = getattr(ge, name)
-        mod = getattr(obj, "__module__", None)
-        if name == "__version__" or mod is None or not mod.startswith("gaffer_envmap"):
-            if name == "CONVENTIONS":
-                rows.append("| `CONVENTIONS` | registry | {py:mod}`gaffer_envmap.conventions` |")
-            elif name == "IDENTITY_LAYOUT_W2C":
-                rows.append("| `IDENTITY_LAYOUT_W2C` | constant | {py:mod}`gaffer_envmap.poses` |")
-            continue
-        kind = "class" if isinstance(obj, type) else "function" if callable(obj) else "object"
-        role = "py:class" if kind == "class" else "py:func" if kind == "function" else "py:data"
-        rows.append(f"| {{{role}}}`~{mod}.{name}` | {kind} | {{py:mod}}`{mod}` |")
-    _write(out / "api_index.md", "\n".join(rows) + "\n")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -494,8 +779,11 @@ def main(out: Path | None = None, quiet: bool = False) -> None:
     sections = run_tutorial(out / "tutorial")
     bench_pages(out)
     api_pages(out)
+    checked = importlib.import_module("check_commands").check(DOCS)
     if not quiet:
-        print(f"generated under {out}: tutorial sections {sections}")
+        print(
+            f"generated under {out}: tutorial sections {sections}; {checked} CLI commands checked"
+        )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Fitting: PSNR, grid schedule and shrink, footprint sizing, early stopping, stability, checkpoints."""
+"""Fitting: PSNR, grid schedule and shrink, footprint sizing, early stopping, rank selection, stability,
+checkpoints."""
 
 import dataclasses
 import math
@@ -8,10 +9,10 @@ import pytest
 import torch
 
 from gaffer_nerf.checkpoint import load_field, save_field
-from gaffer_nerf.configs import EarlyStoppingConfig, GridSizingConfig
+from gaffer_nerf.configs import EarlyStoppingConfig, GridSizingConfig, RankSelectionConfig
 from gaffer_nerf.errors import CameraError, CheckpointError, ConfigError, NonFiniteError
 from gaffer_nerf.fields import EmptyAlphaMaskWarning, voxels_to_grid
-from gaffer_nerf.fit import fit_tensorf, heldout_psnr
+from gaffer_nerf.fit import choose_rank_rung, fit_tensorf, heldout_psnr
 from gaffer_nerf.rendering import render_rays_chunked
 from gaffer_nerf.sizing import choose_grid_sizing
 from gaffer_nerf.testing import orbit_cameras, quick_fit_config, scene_envmap, sphere_viewset
@@ -70,6 +71,42 @@ def test_early_stopping_stops_on_a_plateau(scene) -> None:
     assert [h.iteration for h in res.report.heldout] == [10, 20, 30]
     with pytest.raises(ConfigError, match="heldout"):
         fit_tensorf(scene.train, quick_fit_config(early_stopping=es))
+
+
+def test_rank_selection_keeps_the_small_ranks_on_a_plain_sphere() -> None:
+    # An unpainted sphere under smooth light: 4/8 ranks already fit it (~27 dB held out), so doubling
+    # them (8/16) must not be worth it; the ladder stops after two fits, without trying x4.
+    env = scene_envmap(0)
+    train = sphere_viewset(orbit_cameras(8), env, plain=True)
+    heldout = sphere_viewset(orbit_cameras(3, offset_deg=67.0), env, plain=True)
+    sel = RankSelectionConfig(ladder=(1.0, 2.0, 4.0), tolerance_db=0.5, max_rays=4000)
+    res = fit_tensorf(train, quick_fit_config(rank_selection=sel), heldout=heldout)
+    rs = res.report.rank_selection
+    assert rs is not None and rs.chosen == 0 and len(rs.rungs) == 2, rs
+    small, large = rs.rungs
+    assert (small.density_ranks, small.appearance_ranks) == ((4, 4, 4), (8, 8, 8))
+    assert (large.density_ranks, large.appearance_ranks) == ((8, 8, 8), (16, 16, 16))
+    assert small.heldout_psnr > 24.0 and small.heldout_psnr >= large.heldout_psnr - 0.5
+    assert 0 < small.parameters < large.parameters and 0 < small.memory_mib < large.memory_mib
+    assert all(r.seconds > 0 and r.iterations_run == 120 for r in rs.rungs)
+    assert res.field.config.density_ranks == (4, 4, 4) and rs.chosen_rung is small
+    assert res.report.seconds >= small.seconds + large.seconds
+    assert res.report.final_grid == res.field.grid_size
+    with pytest.raises(ConfigError, match="rank_selection"):
+        fit_tensorf(train, quick_fit_config(rank_selection=sel))
+
+
+def test_choose_rank_rung_and_ladder_validation() -> None:
+    assert choose_rank_rung([20.0, 24.0, 24.1, 30.0], 0.25) == 1  # the first plateau wins
+    assert choose_rank_rung([20.0, 24.0, 26.0], 0.25) is None  # still climbing: fit more
+    assert choose_rank_rung([20.0, 19.0], 0.0) == 0  # a worse larger rung never wins
+    assert choose_rank_rung([20.0], 0.25) is None
+    assert RankSelectionConfig.scaled_ranks((4, 4, 4), 0.1) == (1, 1, 1)
+    for bad, match in (((), "empty"), ((1.0, 0.5), "increasing"), ((0.0, 1.0), "ladder")):
+        with pytest.raises(ConfigError, match=match):
+            RankSelectionConfig(ladder=bad)
+    with pytest.raises(ConfigError, match="tolerance_db"):
+        RankSelectionConfig(tolerance_db=-1.0)
 
 
 def test_scene_without_object_gives_an_empty_mask_and_white_renders() -> None:

@@ -35,7 +35,7 @@ def _common_config(args: argparse.Namespace) -> dict[str, object]:
 def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
     from gaffer_data.recipes import scan_objects
     from gaffer_data.render.plan import scan_envmaps
-    from gaffer_data.render.runner import RunOptions, Shard, render_dataset
+    from gaffer_data.render.runner import Dispatch, RunOptions, Shard, render_dataset
 
     options = RunOptions(
         workers=args.workers,
@@ -44,13 +44,22 @@ def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
         shard=Shard.parse(args.shard),
         progress=not args.no_progress,
     )
-    if args.backend != "local":
+    dispatch: Dispatch | None = None
+    if args.backend == "ray":
+        from gaffer_data.render.ray_backend import RayDispatch, RayOptions
+
+        # Fails fast, before scanning, when ray is missing.
+        dispatch = RayDispatch(
+            RayOptions(address=args.ray_address, cpus_per_task=args.cpus_per_task)
+        )
+    elif args.ray_address is not None or args.cpus_per_task is not None:
         raise GafferDataError(
-            f"`--backend`={args.backend!r} is not implemented yet; use `--backend local`."
+            "`--ray-address` and `--cpus-per-task` only apply to `--backend ray`; "
+            f"got `--backend`={args.backend!r}."
         )
     objects = scan_objects(args.objects)
     pool = scan_envmaps(args.envmaps) if config.lightings > 0 else ()
-    summary = render_dataset(objects, pool, args.out, config, options)
+    summary = render_dataset(objects, pool, args.out, config, options, dispatch=dispatch)
     per_image = sum(summary.image_seconds) / max(1, summary.images)
     print(
         f"rendered {len(summary.rendered)} objects ({summary.images} images, {per_image:.2f} s/image), "
@@ -162,7 +171,23 @@ def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--workers", type=int, default=1)
     r.add_argument("--shard", default="0/1", help="i/N: render the i-th of N shards")
-    r.add_argument("--backend", choices=["local", "ray"], default="local")
+    r.add_argument(
+        "--backend",
+        choices=["local", "ray"],
+        default="local",
+        help="local: worker subprocesses here; ray: one Ray task per object (gaffer-data[ray])",
+    )
+    r.add_argument(
+        "--ray-address",
+        default=None,
+        help="Ray cluster to join (default: $RAY_ADDRESS, else a local instance of --workers tasks)",
+    )
+    r.add_argument(
+        "--cpus-per-task",
+        type=int,
+        default=None,
+        help="Ray CPUs and Cycles threads per object task (default: cpu_count // workers)",
+    )
     r.add_argument("--retries", type=int, default=1)
     r.add_argument("--timeout", type=float, default=None, help="seconds per worker attempt")
     r.add_argument("--no-denoise", action="store_true")

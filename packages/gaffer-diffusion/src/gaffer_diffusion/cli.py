@@ -1,7 +1,10 @@
-"""Command line: `gaffer-diffusion relight | evaluate | init-random | train`.
+"""Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`.
 
+    gaffer-diffusion demo --out DIR [--checkpoint CKPT] [--steps N] [--frames 24]
+        (README's main job: the shipped example object relit under the bundled HDRIs and a turntable;
+        PNGs, a GIF, metrics.json and report.html)
     gaffer-diffusion relight IMAGE --envmap ENV.exr (--w2c W2C.npy | --azimuth DEG --elevation DEG)
-        --checkpoint CKPT [--base-model DIR] --out OUT.png [--steps 50] [--guidance 3] [--seed 0]
+        [--checkpoint CKPT] [--base-model DIR] --out OUT.png [--steps N] [--guidance S] [--seed 0]
         [--turntable N]
     gaffer-diffusion relight IMAGE --ldr LDR.png --hdr HDR.png --checkpoint CKPT ... (pre-encoded maps)
     gaffer-diffusion relight IMAGES_DIR --envmaps ENVMAPS_DIR (--w2c | --azimuth --elevation)
@@ -14,6 +17,7 @@
 
 `--checkpoint` is either our format (a folder with `gaffer_model.json`) or the authors' release
 (`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
+Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 64 px model shipped in the package.
 """
 
 import argparse
@@ -27,6 +31,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from gaffer_diffusion import pretrained
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions, lighting_from_envmap
 from gaffer_diffusion.configs import PRESETS, get_preset
 from gaffer_diffusion.errors import (
@@ -93,7 +98,9 @@ def _parser() -> argparse.ArgumentParser:
         help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail",
     )
     r.add_argument(
-        "--checkpoint", type=Path, required=True, help="our model folder or checkpoint-80000/"
+        "--checkpoint",
+        type=Path,
+        help="our model folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 64 px)",
     )
     r.add_argument(
         "--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)"
@@ -155,6 +162,36 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--json", type=Path, help="write the full report as JSON")
     e.add_argument("--markdown", type=Path, help="write the table of means as markdown")
 
+    d = sub.add_parser(
+        "demo",
+        help="relight the shipped example object under the bundled HDRIs and a turntable; write "
+        "PNGs, a GIF, metrics.json and report.html",
+    )
+    d.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    d.add_argument(
+        "--checkpoint", type=Path, help="our model folder (default: gaffer-tiny, shipped)"
+    )
+    d.add_argument(
+        "--example", type=Path, help="a gaffer-data render folder (default: the shipped example)"
+    )
+    d.add_argument(
+        "--steps", type=int, help="denoising steps (default: the model's suggestion, else 50)"
+    )
+    d.add_argument(
+        "--guidance", type=float, help="CFG scale (default: the model's suggestion, else 3)"
+    )
+    d.add_argument("--frames", type=int, default=24, help="turntable frames (0: none)")
+    d.add_argument("--fps", type=float, default=12.0, help="turntable GIF frames per second")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--batch-size", type=int, default=8, help="images per sampling call")
+    d.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    d.add_argument("--threads", type=int, help="torch CPU threads (default: torch's choice)")
+    d.add_argument(
+        "--no-extra-hdris",
+        action="store_true",
+        help="skip the bundled HDRIs that have no ground-truth render",
+    )
+
     i = sub.add_parser(
         "init-random", help="save a random-weight model in our format (demos, tests)"
     )
@@ -171,8 +208,12 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    p.add_argument("--steps", type=int, default=50, help="denoising steps (paper: 50)")
-    p.add_argument("--guidance", type=float, default=3.0, help="CFG scale (paper: 3)")
+    p.add_argument(
+        "--steps", type=int, help="denoising steps (default: 50, the paper's; gaffer-tiny: 20)"
+    )
+    p.add_argument(
+        "--guidance", type=float, help="CFG scale (default: 3, the paper's; gaffer-tiny: 1)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scheduler", choices=SCHEDULERS, default="ddim")
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
@@ -191,7 +232,13 @@ def _input_lighting(text: str) -> int | str:
         ) from exc
 
 
-def _load_model(checkpoint: Path, base_model: Path | None) -> NeuralGafferModel:
+def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGafferModel:
+    if checkpoint is None:
+        from gaffer_diffusion.demo import load_model
+
+        if base_model is not None:
+            raise ConfigError("`--base-model` goes with the authors' `--checkpoint`; pass both.")
+        return load_model(None).model  # logs that (and where from) it uses gaffer-tiny
     if (checkpoint / MANIFEST_NAME).is_file():
         return load_pretrained(checkpoint).model
     if base_model is None:
@@ -270,8 +317,14 @@ def _progress(total: int, desc: str) -> "tqdm[Any]":
 
 
 def _sampling(args: argparse.Namespace) -> SamplingConfig:
+    steps, guidance = args.steps, args.guidance
+    if getattr(args, "checkpoint", None) is None:  # gaffer-tiny: the settings it was evaluated with
+        steps = steps or pretrained.GAFFER_TINY_STEPS
+        guidance = pretrained.GAFFER_TINY_GUIDANCE if guidance is None else guidance
     return SamplingConfig(
-        num_inference_steps=args.steps, guidance_scale=args.guidance, scheduler=args.scheduler
+        num_inference_steps=steps or 50,
+        guidance_scale=3.0 if guidance is None else guidance,
+        scheduler=args.scheduler,
     )
 
 
@@ -500,6 +553,37 @@ def _evaluate_folders(args: argparse.Namespace) -> int:
     return 0
 
 
+def _demo(args: argparse.Namespace) -> int:
+    from gaffer_diffusion.demo import DemoConfig, run_demo
+
+    if args.threads is not None:
+        if args.threads < 1:
+            raise ConfigError(f"`--threads` is {args.threads}; expected >= 1.")
+        torch.set_num_threads(args.threads)
+    config = DemoConfig(
+        out=args.out,
+        checkpoint=args.checkpoint,
+        example=args.example,
+        num_inference_steps=args.steps,
+        guidance_scale=args.guidance,
+        frames=args.frames,
+        fps=args.fps,
+        seed=args.seed,
+        batch_size=args.batch_size,
+        device=args.device,
+        extra_hdris=not args.no_extra_hdris,
+    )
+    result = run_demo(config)
+    gif = f", {result.turntable_gif}" if result.turntable_gif is not None else ""
+    print(
+        f"relit {result.images} images in {result.seconds:.1f} s; wrote {result.report_html}, "
+        f"{result.metrics_json}{gif} and the PNGs under {result.out}\n"
+        f"mean PSNR {result.mean_relit.psnr:.2f} dB relit vs {result.mean_input.psnr:.2f} dB for "
+        "the unrelit input"
+    )
+    return 0
+
+
 def _init_random(args: argparse.Namespace) -> int:
     model = get_preset(args.preset).setup(seed=args.seed)
     save_pretrained(model, args.out)
@@ -530,6 +614,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         match args.command:
+            case "demo":
+                return _demo(args)
             case "relight":
                 return _relight(args)
             case "evaluate":

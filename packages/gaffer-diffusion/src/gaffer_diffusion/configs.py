@@ -13,6 +13,9 @@ Presets (`get_preset`):
 - `"tiny"`: a few hundred thousand parameters with the same structure (four 4-channel latents, a VAE with a
   downsampling factor of 8, a CLIP vision tower with a projection), 64x64 images: CPU tests run in
   milliseconds per forward.
+- `"gaffer-tiny"`: the shipped small model we train ourselves on CPU (`gaffer_diffusion.pretrained`):
+  pixel space (`VAEConfig(kind="pixel")`, 64x64 "latents" `[R, G, B, luminance]`), a ~3M-parameter UNet
+  with attention at 16x16, and the `"tiny"` CLIP tower.
 """
 
 import dataclasses
@@ -24,7 +27,13 @@ from gaffer_diffusion.errors import ConfigError
 if TYPE_CHECKING:
     from gaffer_diffusion.models.model import NeuralGafferModel
 
-PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny"]
+PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny"]
+
+VAEKind = Literal["autoencoder-kl", "pixel"]
+"""What stands in the VAE's place: diffusers' `AutoencoderKL`, or the exact, parameter-free
+`gaffer_diffusion.models.pixel.PixelAutoencoder` (pixel-space diffusion, downsampling factor 1)."""
+
+VAE_KINDS: tuple[VAEKind, ...] = ("autoencoder-kl", "pixel")
 
 LATENT_CHANNELS = 4
 """Channels of one VAE latent; the UNet input is 4 of them: noisy target + 3 conditioning latents."""
@@ -95,9 +104,13 @@ class UNetConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class VAEConfig:
-    """Shapes of the `diffusers.AutoencoderKL` (the SD VAE by default).
+    """Shapes of the `diffusers.AutoencoderKL` (the SD VAE by default), or the pixel-space stand-in.
 
     Attributes:
+        kind: "autoencoder-kl" (default) or "pixel": the exact, parameter-free map of an RGB image in
+            [-1, 1] to a 4-channel full-resolution "latent" `[R, G, B, luminance]` whose decode takes the
+            RGB channels (`gaffer_diffusion.models.pixel`). With "pixel" the downsampling factor is 1 and
+            only `latent_channels`, `scaling_factor` and `sample_size` are used.
         block_out_channels: encoder channels per level; the downsampling factor is 2**(levels - 1).
         layers_per_block: ResNet layers per level.
         latent_channels: 4.
@@ -106,6 +119,7 @@ class VAEConfig:
         sample_size: nominal image size.
     """
 
+    kind: VAEKind = "autoencoder-kl"
     block_out_channels: tuple[int, ...] = (128, 256, 512, 512)
     layers_per_block: int = 2
     latent_channels: int = LATENT_CHANNELS
@@ -113,13 +127,32 @@ class VAEConfig:
     scaling_factor: float = 0.18215
     sample_size: int = 256
 
+    def __post_init__(self) -> None:
+        if self.kind not in VAE_KINDS:
+            raise ConfigError(f"`vae.kind` is {self.kind!r}; expected one of {list(VAE_KINDS)}.")
+        if not self.scaling_factor > 0:
+            raise ConfigError(
+                f"`vae.scaling_factor` is {self.scaling_factor}; it must be positive."
+            )
+
     @property
     def downsampling_factor(self) -> int:
-        """Image size / latent size (8 for the SD VAE)."""
+        """Image size / latent size (8 for the SD VAE, 1 for `kind="pixel"`)."""
+        if self.kind == "pixel":
+            return 1
         return 2 ** (len(self.block_out_channels) - 1)
 
     def to_diffusers(self) -> dict[str, Any]:
-        """Keyword arguments for `AutoencoderKL(**kwargs)`."""
+        """Keyword arguments for `AutoencoderKL(**kwargs)`.
+
+        Raises:
+            ConfigError: for `kind="pixel"`, which is not an `AutoencoderKL`.
+        """
+        if self.kind == "pixel":
+            raise ConfigError(
+                "`vae.kind` is 'pixel': there is no AutoencoderKL to build; use "
+                "`gaffer_diffusion.models.build.build_vae`."
+            )
         levels = len(self.block_out_channels)
         return {
             "in_channels": 3,
@@ -308,7 +341,31 @@ def _tiny() -> ModelConfig:
     )
 
 
-PRESETS: tuple[PresetName, ...] = ("neural-gaffer-256", "neural-gaffer-512", "tiny")
+GAFFER_TINY_CHANNELS: tuple[int, ...] = (16, 32, 64, 128)
+"""UNet channels per level of `"gaffer-tiny"` (64, 32, 16, 8 px)."""
+
+
+def _gaffer_tiny() -> ModelConfig:
+    tiny = _tiny()
+    return ModelConfig(
+        name="gaffer-tiny",
+        resolution=64,
+        unet=UNetConfig(
+            sample_size=64,
+            block_out_channels=GAFFER_TINY_CHANNELS,
+            layers_per_block=1,
+            down_block_types=("DownBlock2D", "DownBlock2D", "CrossAttnDownBlock2D", "DownBlock2D"),
+            up_block_types=("UpBlock2D", "CrossAttnUpBlock2D", "UpBlock2D", "UpBlock2D"),
+            attention_head_dim=4,
+            cross_attention_dim=32,
+            norm_num_groups=8,
+        ),
+        vae=VAEConfig(kind="pixel", scaling_factor=1.0, sample_size=64),
+        image_encoder=tiny.image_encoder,
+    )
+
+
+PRESETS: tuple[PresetName, ...] = ("neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny")
 
 
 def get_preset(name: PresetName) -> ModelConfig:
@@ -332,4 +389,6 @@ def get_preset(name: PresetName) -> ModelConfig:
         )
     if name == "tiny":
         return _tiny()
+    if name == "gaffer-tiny":
+        return _gaffer_tiny()
     raise ConfigError(f"`name` is {name!r}; expected one of {list(PRESETS)}.")

@@ -38,6 +38,7 @@ from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import CheckpointMismatchError, CheckpointNotFoundError
 from gaffer_diffusion.models.build import config_from_modules
 from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.pixel import PixelAutoencoder, is_pixel_config
 from gaffer_diffusion.models.surgery import expand_conv_in
 
 logger = logging.getLogger(__name__)
@@ -264,8 +265,10 @@ def _read_json(path: Path, what: str, how: str) -> dict[str, Any]:
     return data
 
 
-def _load_vae(folder: Path, how: str) -> AutoencoderKL:
-    _read_json(folder / "config.json", "the VAE config `vae/config.json`", how)
+def _load_vae(folder: Path, how: str) -> AutoencoderKL | PixelAutoencoder:
+    config = _read_json(folder / "config.json", "the VAE config `vae/config.json`", how)
+    if is_pixel_config(config):
+        return PixelAutoencoder.from_config(config).eval()
     if _find_weights(folder, DIFFUSERS_WEIGHT_FILES) is None:
         raise CheckpointNotFoundError(
             "the VAE weights (`diffusion_pytorch_model.safetensors` or `.bin`)", [folder], how

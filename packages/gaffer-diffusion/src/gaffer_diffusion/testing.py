@@ -1,14 +1,17 @@
 """Public test helpers: tiny random models, random conditions and fake checkpoint folders.
 
 Sibling packages and e2e tests import these (tests run with `--import-mode=importlib`). Nothing here
-downloads anything: every model is a random-initialised `tiny` preset.
+downloads anything: every model is a random-initialised `tiny` preset, and the rendered dataset is
+written without Blender.
 """
 
 import dataclasses
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
+from PIL import Image
 from safetensors.torch import save_file
 
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
@@ -84,3 +87,112 @@ def write_fake_authors_checkpoint(
 def tiny_config() -> ModelConfig:
     """The `tiny` preset config."""
     return get_preset("tiny")
+
+
+def write_tiny_render_dataset(
+    root: Path, *, lightings: int = 3, resolution: int = 32, views: int = 1
+) -> Path:
+    """A gaffer-data render folder written without Blender: one object ("disc"), flat-shaded PNGs.
+
+    Each view has `lightings` renders under two tiny 8 x 16 env maps ("warm", "cool", written to
+    `root/envmaps`; every third draw is mirrored and yawed), an alpha mask and its camera pose; the
+    object's manifest goes through gaffer-data's schema, so `gaffer_data.open_dataset` reads it. The
+    disc's colour changes with the lighting, so relighting has something to score.
+
+    Needs gaffer-data and gaffer-envmap (imported here, not at module import).
+
+    Returns:
+        `root`, the dataset folder (`root/objects/disc/`).
+    """
+    from gaffer_data.dataset import sha256_file
+    from gaffer_data.dataset.manifest import object_manifest_json
+    from gaffer_data.dataset.schema import (
+        CameraSample,
+        EnvmapRef,
+        FileRecord,
+        Intrinsics,
+        LitImage,
+        Normalization,
+        ObjectPlan,
+        ViewRecord,
+    )
+    from gaffer_data.testing import tiny_config
+    from gaffer_envmap import EnvironmentMap, write_envmap
+    from gaffer_envmap.poses import orbit_w2c_blender
+
+    res = resolution
+    envmaps = {}
+    (root / "envmaps").mkdir(parents=True, exist_ok=True)
+    for k, (name, rgb) in enumerate({"warm": (1.0, 0.6, 0.3), "cool": (0.2, 0.4, 1.0)}.items()):
+        env = np.broadcast_to(np.asarray(rgb, np.float32), (8, 16, 3)).copy()
+        env[2, 3 + 5 * k] = 50.0  # a small sun, at a different place per map
+        envmaps[name] = root / "envmaps" / f"{name}.exr"
+        write_envmap(envmaps[name], EnvironmentMap(radiance_linear=env))
+    obj = root / "objects" / "disc"
+    (obj / "lit").mkdir(parents=True)
+    (obj / "alpha").mkdir()
+    yy, xx = np.mgrid[:res, :res]
+    alpha = (((yy - res / 2) ** 2 + (xx - res / 2) ** 2) < (res / 3) ** 2).astype(np.uint8) * 255
+    names = list(envmaps)
+    view_records, w2c = [], []
+    for v in range(views):
+        az, el = 40.0 * v, 15.0
+        w2c.append(orbit_w2c_blender(az, el, 2.0).matrix)
+        lit = []
+        for li in range(lightings):
+            name = names[li % len(names)]
+            ref = EnvmapRef(
+                name=name,
+                source=str(envmaps[name]),
+                source_sha256=sha256_file(envmaps[name]),
+                flip=li % 3 == 2,
+                yaw_step=li % 4,
+                num_steps=4,
+            )
+            rgba = np.zeros((res, res, 4), np.uint8)
+            rgba[..., :3] = (np.array([60, 120, 200]) + 40 * li + 10 * v) % 256
+            rgba[..., 3] = alpha
+            png = f"lit/{v:03d}_{li:03d}.png"
+            Image.fromarray(rgba).save(obj / png)
+            lit.append(LitImage(lighting_index=li, envmap=ref, exr=png, png=png))
+        Image.fromarray(alpha).save(obj / f"alpha/{v:03d}.png")
+        cam = CameraSample(elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0))
+        view_records.append(
+            ViewRecord(index=v, camera=cam, lit=tuple(lit), area=None, alpha=f"alpha/{v:03d}.png")
+        )
+    w2c_arr = np.stack(w2c)
+    c2w_cv = np.stack([np.linalg.inv(np.vstack([m, [0, 0, 0, 1]])) for m in w2c_arr])
+    c2w_cv = c2w_cv @ np.diag([1.0, -1.0, -1.0, 1.0])
+    intrinsics = np.array([[35.0, 0, res / 2], [0, 35.0, res / 2], [0, 0, 1]])
+    with open(obj / "cameras.npz", "wb") as fh:
+        np.savez(fh, w2c_blender=w2c_arr, c2w_opencv=c2w_cv, intrinsics=intrinsics)
+    files = []
+    for p in sorted(obj.rglob("*")):
+        if p.is_file():
+            rel = p.relative_to(obj).as_posix()
+            kind = "cameras" if rel.endswith(".npz") else "alpha" if "alpha" in rel else "lit_png"
+            files.append(
+                FileRecord(
+                    path=rel,
+                    sha256=sha256_file(p),
+                    kind=kind,
+                    dtype="npz" if kind == "cameras" else "uint8",
+                    shape=(),
+                    color_space="data" if kind != "lit_png" else "srgb",
+                )
+            )
+    plan = ObjectPlan(
+        object_id="disc",
+        source="disc.obj",
+        views=tuple(view_records),
+        intrinsics=Intrinsics(width=res, height=res, fx=35.0, fy=35.0, cx=res / 2, cy=res / 2),
+        config=tiny_config(views=views, lightings=lightings, resolution=res),
+    )
+    body = object_manifest_json(
+        plan,
+        source_sha256="0" * 64,
+        normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
+        files=files,
+    )
+    (obj / "manifest.json").write_text(json.dumps(body))
+    return root

@@ -15,6 +15,7 @@ from gaffer_nerf.configs import (
     EarlyStoppingConfig,
     FitConfig,
     GridSizingConfig,
+    RankSelectionConfig,
     RelightConfig,
     SceneBoxConfig,
     Stage1Config,
@@ -42,11 +43,24 @@ from gaffer_nerf.errors import (
     NonFiniteError,
     ShapeError,
 )
-from gaffer_nerf.evaluate import evaluate_field, render_views
+from gaffer_nerf.evaluate import EmptyMaskWarning, evaluate_field, render_views
 from gaffer_nerf.fields import EmptyAlphaMaskWarning, TensoRFVM
-from gaffer_nerf.fit import FitReport, FitResult, fit_tensorf
+from gaffer_nerf.fit import (
+    FitReport,
+    FitResult,
+    RankRung,
+    RankSelectionReport,
+    choose_rank_rung,
+    fit_tensorf,
+)
 from gaffer_nerf.guidance import DiffusionGuide, PerceptualLoss, load_perceptual_loss, t_star
-from gaffer_nerf.relight import RelightReport, RelightResult, StageReport, relight_field
+from gaffer_nerf.relight import (
+    NothingToRelightWarning,
+    RelightReport,
+    RelightResult,
+    StageReport,
+    relight_field,
+)
 from gaffer_nerf.rendering import (
     RenderOutput,
     SampleWeightCache,
@@ -55,6 +69,7 @@ from gaffer_nerf.rendering import (
     render_rays,
 )
 from gaffer_nerf.sizing import GridSizing, choose_grid_sizing
+from gaffer_nerf.video import OrbitVideo, orbit_path, render_orbit, write_gif
 
 __all__ = [
     "ABLATIONS",
@@ -68,6 +83,7 @@ __all__ = [
     "DiffusionSamplingConfig",
     "EarlyStoppingConfig",
     "EmptyAlphaMaskWarning",
+    "EmptyMaskWarning",
     "FitConfig",
     "FitReport",
     "FitResult",
@@ -78,7 +94,12 @@ __all__ = [
     "MissingDependencyError",
     "MultiViewScene",
     "NonFiniteError",
+    "NothingToRelightWarning",
+    "OrbitVideo",
     "PerceptualLoss",
+    "RankRung",
+    "RankSelectionConfig",
+    "RankSelectionReport",
     "RayBundle",
     "RelightConfig",
     "RelightReport",
@@ -96,19 +117,23 @@ __all__ = [
     "__version__",
     "build_weight_cache",
     "choose_grid_sizing",
+    "choose_rank_rung",
     "evaluate_field",
     "fit_preset",
     "fit_tensorf",
     "load_field",
     "load_lighting_envmap",
     "load_perceptual_loss",
+    "orbit_path",
     "read_gaffer_data_object",
     "read_transforms_folder",
     "relight_field",
     "relight_preset",
     "render_cached",
+    "render_orbit",
     "render_rays",
     "render_views",
     "save_field",
     "t_star",
+    "write_gif",
 ]

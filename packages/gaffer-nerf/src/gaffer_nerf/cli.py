@@ -1,12 +1,13 @@
 """Command line: `gaffer-nerf fit | relight | render | evaluate`.
 
     gaffer-nerf fit DATA --out FIELD [--preset paper|tiny] [--iterations N] [--lighting-index 0]
-        [--sizing fixed|footprint] [--early-stopping] [--device cuda]
+        [--sizing fixed|footprint] [--early-stopping] [--rank-selection [--rank-ladder 0.25 0.5 1]
+        [--rank-tolerance DB]] [--device cuda]
     gaffer-nerf relight FIELD --data DATA --target-lighting K [--envmaps DIR | --envmap FILE]
         (--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny) --out RELIT
         [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
-    gaffer-nerf render FIELD --data DATA [--split test] --out DIR
+    gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
     gaffer-nerf evaluate FIELD --data DATA --target-lighting K [--split test] [--json F]
 
 DATA is a gaffer-data multi-view object folder or a NeRF-Synthetic scene (`transforms_*.json`).
@@ -29,6 +30,7 @@ from gaffer_nerf.checkpoint import load_field, save_field
 from gaffer_nerf.configs import (
     ABLATIONS,
     EarlyStoppingConfig,
+    RankSelectionConfig,
     fit_preset,
     relight_preset,
 )
@@ -53,6 +55,21 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--plain", action="store_true", help="NeRF-Synthetic folder: load file_path")
     f.add_argument("--sizing", choices=("fixed", "footprint"), default="fixed")
     f.add_argument("--early-stopping", action="store_true", help="stop on a held-out PSNR plateau")
+    f.add_argument(
+        "--rank-selection",
+        action="store_true",
+        help="fit a ladder of VM ranks and keep the smallest the held-out PSNR justifies",
+    )
+    f.add_argument(
+        "--rank-ladder",
+        type=float,
+        nargs="+",
+        metavar="SCALE",
+        help="rank multipliers of the ladder, small first (0.25 0.5 1.0)",
+    )
+    f.add_argument(
+        "--rank-tolerance", type=float, metavar="DB", help="gain a larger rung must beat (0.25)"
+    )
     f.add_argument("--seed", type=int, default=0)
 
     r = sub.add_parser("relight", help="relight a fitted field under a target lighting")
@@ -81,6 +98,13 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--data", type=Path, required=True)
     d.add_argument("--split", choices=("train", "test"), default="test")
     d.add_argument("--out", type=Path, required=True, help="folder for the PNGs")
+    d.add_argument(
+        "--orbit",
+        type=int,
+        metavar="N",
+        help="instead of the split's poses, N frames on an orbit like its cameras + orbit.gif",
+    )
+    d.add_argument("--fps", type=float, default=12.0, help="frame rate of orbit.gif (12)")
 
     e = sub.add_parser(
         "evaluate", help="score renders against ground truth under the target lighting"
@@ -141,12 +165,28 @@ def _fit(args: argparse.Namespace) -> int:
     changes["sizing"] = dataclasses.replace(cfg.sizing, mode=args.sizing)
     if args.early_stopping:
         changes["early_stopping"] = EarlyStoppingConfig()
+    selecting = (
+        args.rank_selection or args.rank_ladder is not None or args.rank_tolerance is not None
+    )
+    if selecting:
+        sel: dict[str, Any] = {}
+        if args.rank_ladder is not None:
+            sel["ladder"] = tuple(args.rank_ladder)
+        if args.rank_tolerance is not None:
+            sel["tolerance_db"] = args.rank_tolerance
+        changes["rank_selection"] = RankSelectionConfig(**sel)
     cfg = dataclasses.replace(cfg, **changes)
     scene = _scene(args.data, None if args.plain else args.lighting_index)
+    needs_heldout = args.early_stopping or selecting
+    if needs_heldout and scene.test is None:
+        raise ConfigError(
+            f"`--early-stopping` / `--rank-selection` score held-out views, but {scene.root} has no "
+            "`transforms_test.json`; add a test split or drop those flags."
+        )
     res = fit_tensorf(
         scene.train,
         cfg,
-        heldout=scene.test if args.early_stopping else None,
+        heldout=scene.test if needs_heldout else None,
         device=args.device,
         progress=not args.no_progress,
     )
@@ -158,6 +198,14 @@ def _fit(args: argparse.Namespace) -> int:
         f"{'x'.join(map(str, rep.final_grid))} ({rep.grid_bytes / 2**20:.1f} MiB), "
         f"last batch MSE {rep.final_train_loss:.3g} -> {args.out}"
     )
+    if rep.rank_selection is not None:
+        for k, rung in enumerate(rep.rank_selection.rungs):
+            mark = "*" if k == rep.rank_selection.chosen else " "
+            print(
+                f" {mark} ranks {rung.density_ranks} / {rung.appearance_ranks}: "
+                f"{rung.heldout_psnr:.2f} dB held out, {rung.parameters} parameters "
+                f"({rung.memory_mib:.2f} MiB), {rung.seconds:.1f} s"
+            )
     return 0
 
 
@@ -248,6 +296,15 @@ def _render(args: argparse.Namespace) -> int:
     )
     views = _split(scene, args.split)
     field = load_field(args.field, device=args.device)
+    if args.orbit is not None:
+        from gaffer_nerf.video import orbit_path, render_orbit
+
+        # orbit the field's (shrunk) box centre: the object, wherever the capture was centred
+        center = field.aabb.detach().cpu().double().mean(dim=0)
+        cams = orbit_path(views.cameras, args.orbit, center_world=center)
+        video = render_orbit(field, cams, args.out, fps=args.fps, progress=not args.no_progress)
+        print(f"rendered {len(video.frames)} orbit frames -> {args.out}, {video.gif}")
+        return 0
     images = render_views(field, views.cameras)
     names = [f"{i:03d}" for i in range(views.num_views)]
     write_images(images, args.out, names)

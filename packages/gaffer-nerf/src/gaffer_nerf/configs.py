@@ -185,6 +185,52 @@ class EarlyStoppingConfig:
 
 
 @dataclass(frozen=True, kw_only=True)
+class RankSelectionConfig:
+    """Choose the VM ranks from held-out PSNR ("ranks ... stopped when held-out PSNR stops improving").
+
+    The field is fitted once per rung of `ladder`, smallest first: rung k multiplies
+    `TensoRFConfig.density_ranks` and `appearance_ranks` by `ladder[k]` (rounded, at least 1; rungs
+    that round to the same ranks are fitted once). The climb stops at the first rung whose held-out
+    PSNR is within `tolerance_db` of the next larger rung's, and keeps that smaller rung; it keeps the
+    largest rung when every step up gains more than `tolerance_db`. Choosing rung k costs k + 2 fits
+    (k + 1 when k is the last), each with the full `FitConfig` (early stopping included).
+
+    Attributes:
+        ladder: strictly increasing rank multipliers, (0.25, 0.5, 1.0): with the paper's ranks,
+            density 4/8/16 and appearance 12/24/48 per plane/line pair.
+        tolerance_db: a larger rung must beat the smaller one by more than this to be worth it (0.25).
+        max_rays: held-out rays scored per rung (a fixed, seeded subset).
+
+    Example:
+        >>> RankSelectionConfig().scaled_ranks((16, 16, 16), 0.25)
+        (4, 4, 4)
+    """
+
+    ladder: tuple[float, ...] = (0.25, 0.5, 1.0)
+    tolerance_db: float = 0.25
+    max_rays: int = 16384
+
+    def __post_init__(self) -> None:
+        if not self.ladder:
+            raise ConfigError(
+                "`ladder` is empty; give at least one rank multiplier, e.g. (0.5, 1.0)."
+            )
+        for s in self.ladder:
+            _positive("ladder", s)
+        if list(self.ladder) != sorted(set(self.ladder)):
+            raise ConfigError(f"`ladder` {self.ladder} must be strictly increasing (small first).")
+        _non_negative("tolerance_db", self.tolerance_db)
+        if self.max_rays < 1:
+            raise ConfigError(f"`max_rays` is {self.max_rays!r}; expected >= 1.")
+
+    @staticmethod
+    def scaled_ranks(ranks: Ranks, scale: float) -> Ranks:
+        """`ranks` times `scale`, rounded, at least 1 each."""
+        a, b, c = (max(1, round(r * scale)) for r in ranks)
+        return (a, b, c)
+
+
+@dataclass(frozen=True, kw_only=True)
 class FitConfig:
     """Fitting the radiance field to the input-lighting images (official implementation §6).
 
@@ -208,6 +254,8 @@ class FitConfig:
         sizing: how fine the final grid is.
         early_stopping: stop on a held-out PSNR plateau; None runs every iteration.
         seed: torch seed for initialisation and ray sampling.
+        rank_selection: fit a ladder of VM ranks and keep the smallest that the held-out PSNR
+            justifies; None fits `tensorf`'s ranks once (the paper).
     """
 
     tensorf: TensoRFConfig = field(default_factory=TensoRFConfig)
@@ -229,6 +277,7 @@ class FitConfig:
     sizing: GridSizingConfig = field(default_factory=GridSizingConfig)
     early_stopping: EarlyStoppingConfig | None = None
     seed: int = 0
+    rank_selection: RankSelectionConfig | None = None
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.batch_rays < 1:

@@ -6,6 +6,7 @@ the target `LLL`). Scores come from `gaffer_diffusion.metrics.evaluate_images`: 
 perceptual distance, raw and channel-aligned (means over the whole image and over the object mask).
 """
 
+import warnings
 from pathlib import Path
 from typing import Literal
 
@@ -16,11 +17,16 @@ from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.metrics import MetricsReport, PerceptualMetric, evaluate_images
+from gaffer_envmap.atomic import atomic_write
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ShapeError
 from gaffer_nerf.fields.tensorf import TensoRFVM
 from gaffer_nerf.rendering import render_rays_chunked
+
+
+class EmptyMaskWarning(UserWarning):
+    """Some ground-truth alpha masks are empty, so their mask-aligned scores use the whole image."""
 
 
 @torch.no_grad()
@@ -66,13 +72,38 @@ def score_images(
 ) -> MetricsReport:
     """Score predictions (e.g. read back from PNGs) against a `ViewSet` of the same cameras.
 
+    A view whose ground-truth alpha is empty (no object in frame) has no masked alignment: the
+    scale fitted over zero pixels is 0 and would score a black image. Such views are aligned over the
+    whole image instead; when every mask is empty the masked variant is left out of the report.
+    Either case warns (`EmptyMaskWarning`) with the view names.
+
     Raises:
         ShapeError: when the shapes differ.
     """
     gt = ground_truth.rgb_srgb.permute(0, 3, 1, 2).contiguous()
     if tuple(pred.shape) != tuple(gt.shape):
         raise ShapeError("pred", tuple(pred.shape), f"{tuple(gt.shape)} (the ground truth's)")
-    mask = None if ground_truth.alpha is None else ground_truth.alpha[:, None]
+    mask = None if ground_truth.alpha is None else ground_truth.alpha[:, None].float()
+    if mask is not None:
+        empty = (mask.flatten(1).sum(dim=1) <= 0).nonzero().flatten().tolist()
+        if len(empty) == mask.shape[0]:
+            warnings.warn(
+                "Every ground-truth alpha mask is empty (no object in view); the mask-aligned "
+                "scores are left out (raw and whole-image-aligned only).",
+                EmptyMaskWarning,
+                stacklevel=2,
+            )
+            mask = None
+        elif empty:
+            names = [ground_truth.names[i] for i in empty]
+            warnings.warn(
+                f"Views {names} have an empty ground-truth alpha mask; their mask-aligned scores "
+                "use the whole image.",
+                EmptyMaskWarning,
+                stacklevel=2,
+            )
+            mask = mask.clone()
+            mask[empty] = 1.0
     return evaluate_images(
         pred.float().clamp(0, 1),
         gt.float(),
@@ -85,14 +116,14 @@ def score_images(
 def write_images(
     images: Float[Tensor, "V 3 H W"], folder: str | Path, names: list[str]
 ) -> list[Path]:
-    """Write `[V, 3, H, W]` images in [0, 1] as 8-bit PNGs `folder/<name>.png`."""
+    """Write `[V, 3, H, W]` images in [0, 1] as 8-bit PNGs `folder/<name>.png` (atomic writes)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     for img, name in zip(images, names, strict=True):
         arr = (img.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
         path = folder / f"{name}.png"
-        Image.fromarray(arr, "RGB").save(path)
+        atomic_write(path, lambda tmp, a=arr: Image.fromarray(a, "RGB").save(tmp))
         paths.append(path)
     return paths
 

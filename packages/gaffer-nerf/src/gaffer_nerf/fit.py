@@ -7,22 +7,24 @@ region and switches the L1 weight; the second drops the rays that miss the box);
 iterations the factors are upsampled along a log-spaced voxel schedule and the optimiser is rebuilt at
 the initial learning rates (TensoRF's `lr_upsample_reset`).
 
-Two additions: the final resolution can come from the cameras' pixel footprint (`gaffer_nerf.sizing`),
-and fitting can stop when the held-out PSNR stops improving (`EarlyStoppingConfig`).
+Three additions ("model no more than the scene needs", issue 6): the final resolution can come from the
+cameras' pixel footprint (`gaffer_nerf.sizing`), fitting can stop when the held-out PSNR stops improving
+(`EarlyStoppingConfig`), and the VM ranks can be chosen from a ladder by held-out PSNR
+(`RankSelectionConfig`).
 """
 
 import logging
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 
 import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from gaffer_nerf.cameras import RayBundle
-from gaffer_nerf.configs import FitConfig
+from gaffer_nerf.configs import FitConfig, Ranks, RankSelectionConfig
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ConfigError, NonFiniteError
 from gaffer_nerf.fields.tensorf import GridSize, TensoRFVM, log_spaced_voxels, voxels_to_grid
@@ -44,6 +46,51 @@ class HeldoutScore:
 
 
 @dataclass(frozen=True, kw_only=True)
+class RankRung:
+    """One rung of the rank ladder: what its ranks cost and what they scored.
+
+    Attributes:
+        scale: the ladder multiplier.
+        density_ranks: density components per plane/line pair.
+        appearance_ranks: appearance components per plane/line pair.
+        parameters: trainable parameters at the end of the fit (factors, basis matrix, MLP).
+        memory_mib: their size in MiB.
+        seconds: wall time of this rung's fit.
+        iterations_run: steps taken (fewer than configured when stopped early).
+        heldout_psnr: PSNR in dB on the held-out rays.
+    """
+
+    scale: float
+    density_ranks: Ranks
+    appearance_ranks: Ranks
+    parameters: int
+    memory_mib: float
+    seconds: float
+    iterations_run: int
+    heldout_psnr: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class RankSelectionReport:
+    """The rank ladder as climbed: every rung fitted, and which one was kept.
+
+    Attributes:
+        rungs: the fitted rungs, smallest first (rungs above the stopping point are not fitted).
+        chosen: index into `rungs` of the kept field.
+        tolerance_db: the gain a larger rung needed to be worth it.
+    """
+
+    rungs: tuple[RankRung, ...]
+    chosen: int
+    tolerance_db: float
+
+    @property
+    def chosen_rung(self) -> RankRung:
+        """The kept rung."""
+        return self.rungs[self.chosen]
+
+
+@dataclass(frozen=True, kw_only=True)
 class FitReport:
     """What fitting did.
 
@@ -54,9 +101,11 @@ class FitReport:
         final_grid: voxels per axis at the end.
         grid_history: `(iteration, grid)` after every resize (shrink or upsample).
         sizing: the resolution decision.
-        seconds: wall time.
+        seconds: wall time (of every rung, with rank selection).
         grid_bytes: memory of the factor grids at the end.
         final_train_loss: MSE of the last batch.
+        rank_selection: the rank ladder, when `FitConfig.rank_selection` is set (the other fields
+            describe the kept rung's fit).
     """
 
     iterations_run: int
@@ -68,6 +117,7 @@ class FitReport:
     seconds: float
     grid_bytes: int
     final_train_loss: float
+    rank_selection: RankSelectionReport | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,7 +167,8 @@ def fit_tensorf(
     Args:
         train: training images (sRGB over white) and cameras.
         config: the recipe (`fit_preset("paper")` is the authors').
-        heldout: held-out views for early stopping (needed when `config.early_stopping` is set).
+        heldout: held-out views for early stopping and rank selection (needed when
+            `config.early_stopping` or `config.rank_selection` is set).
         device: torch device.
         progress: show a progress bar.
         callback: called as `callback(iteration, loss)` after every step.
@@ -127,18 +178,150 @@ def fit_tensorf(
 
     Raises:
         CameraError: degenerate cameras (NaN poses, all centres coincident).
-        ConfigError: early stopping without held-out views.
+        ConfigError: early stopping or rank selection without held-out views.
         NonFiniteError: the loss became NaN/Inf.
     """
-    t0 = time.perf_counter()
     train.cameras.check_baseline()
-    es = config.early_stopping
-    if es is not None and heldout is None:
-        raise ConfigError(
-            "`config.early_stopping` is set but `heldout` is None; pass held-out views (e.g. the "
-            "test split) or set `early_stopping=None`."
+    for name in ("early_stopping", "rank_selection"):
+        if getattr(config, name) is not None and heldout is None:
+            raise ConfigError(
+                f"`config.{name}` is set but `heldout` is None; pass held-out views (e.g. the "
+                f"test split) or set `{name}=None`."
+            )
+    if config.rank_selection is not None and heldout is not None:
+        return _fit_rank_ladder(
+            train,
+            config,
+            config.rank_selection,
+            heldout=heldout,
+            device=torch.device(device),
+            progress=progress,
+            callback=callback,
         )
-    dev = torch.device(device)
+    return _fit_once(
+        train,
+        config,
+        heldout=heldout,
+        device=torch.device(device),
+        progress=progress,
+        callback=callback,
+    )
+
+
+def choose_rank_rung(psnrs: Sequence[float], tolerance_db: float) -> int | None:
+    """Which rung of a rank ladder to keep, given the held-out PSNRs of the rungs fitted so far.
+
+    The first rung k whose PSNR is within `tolerance_db` of rung k + 1's: a larger model would not
+    pay for itself. None while every step up has gained more (fit the next rung, or, when none is
+    left, keep the last: `len(psnrs) - 1`).
+
+    Example:
+        >>> choose_rank_rung([24.0, 27.0, 27.1], 0.25)
+        1
+        >>> choose_rank_rung([24.0, 27.0], 0.25) is None
+        True
+    """
+    for k in range(len(psnrs) - 1):
+        if psnrs[k] >= psnrs[k + 1] - tolerance_db:
+            return k
+    return None
+
+
+def _fit_rank_ladder(
+    train: ViewSet,
+    config: FitConfig,
+    selection: RankSelectionConfig,
+    *,
+    heldout: ViewSet,
+    device: torch.device,
+    progress: bool,
+    callback: StepCallback | None,
+) -> FitResult:
+    """Fit each rung of the ladder, smallest first, until the held-out PSNR stops improving."""
+    t0 = time.perf_counter()
+    eval_rays, eval_rgb = _heldout_subset(heldout, selection.max_rays, device)
+    base = config.tensorf
+    results: list[FitResult] = []
+    rungs: list[RankRung] = []
+    seen: set[tuple[Ranks, Ranks]] = set()
+    chosen: int | None = None
+    for scale in selection.ladder:
+        ranks = (
+            selection.scaled_ranks(base.density_ranks, scale),
+            selection.scaled_ranks(base.appearance_ranks, scale),
+        )
+        if ranks in seen:  # small base ranks: neighbouring multipliers can round alike
+            continue
+        seen.add(ranks)
+        rung_config = replace(
+            config,
+            rank_selection=None,
+            tensorf=replace(base, density_ranks=ranks[0], appearance_ranks=ranks[1]),
+        )
+        t_rung = time.perf_counter()
+        res = _fit_once(
+            train, rung_config, heldout=heldout, device=device, progress=progress, callback=callback
+        )
+        params = list(res.field.parameters())
+        rungs.append(
+            RankRung(
+                scale=scale,
+                density_ranks=ranks[0],
+                appearance_ranks=ranks[1],
+                parameters=sum(p.numel() for p in params),
+                memory_mib=sum(p.numel() * p.element_size() for p in params) / 2**20,
+                seconds=time.perf_counter() - t_rung,
+                iterations_run=res.report.iterations_run,
+                heldout_psnr=heldout_psnr(res.field, eval_rays, eval_rgb),
+            )
+        )
+        results.append(res)
+        logger.info(
+            "ranks %s / %s: %.2f dB held out, %d parameters, %.1f s",
+            ranks[0],
+            ranks[1],
+            rungs[-1].heldout_psnr,
+            rungs[-1].parameters,
+            rungs[-1].seconds,
+        )
+        chosen = choose_rank_rung([r.heldout_psnr for r in rungs], selection.tolerance_db)
+        if chosen is not None:
+            break
+    if chosen is None:
+        chosen = len(rungs) - 1
+    kept = results[chosen]
+    report = replace(
+        kept.report,
+        seconds=time.perf_counter() - t0,
+        rank_selection=RankSelectionReport(
+            rungs=tuple(rungs), chosen=chosen, tolerance_db=selection.tolerance_db
+        ),
+    )
+    return FitResult(field=kept.field, report=report)
+
+
+def _heldout_subset(
+    heldout: ViewSet, max_rays: int, device: torch.device
+) -> tuple[RayBundle, torch.Tensor]:
+    """A fixed, seeded subset of at most `max_rays` held-out rays and their colours."""
+    all_eval = heldout.cameras.rays()
+    pick = torch.randperm(len(all_eval), generator=torch.Generator().manual_seed(1))[:max_rays]
+    return all_eval.select(pick).to(device), heldout.rgb_flat()[pick].to(device)
+
+
+def _fit_once(
+    train: ViewSet,
+    config: FitConfig,
+    *,
+    heldout: ViewSet | None,
+    device: torch.device,
+    progress: bool,
+    callback: StepCallback | None,
+) -> FitResult:
+    """One fit with `config.tensorf`'s ranks (the body of `fit_tensorf`)."""
+    t0 = time.perf_counter()
+    es = config.early_stopping
+    dev = device
     gen = torch.Generator().manual_seed(config.seed)
     rays = train.cameras.rays().to(dev)
     rgb = train.rgb_flat().to(dev)
@@ -164,10 +347,7 @@ def fit_tensorf(
 
     eval_rays, eval_rgb = None, None
     if heldout is not None and es is not None:
-        all_eval = heldout.cameras.rays()
-        pick = torch.randperm(len(all_eval), generator=torch.Generator().manual_seed(1))
-        pick = pick[: es.max_rays]
-        eval_rays, eval_rgb = all_eval.select(pick).to(dev), heldout.rgb_flat()[pick].to(dev)
+        eval_rays, eval_rgb = _heldout_subset(heldout, es.max_rays, dev)
 
     best, since_best, stopped, loss_value = -math.inf, 0, False, math.nan
     it = 0

@@ -95,8 +95,11 @@ def orbit_cameras(
     )
 
 
+PLAIN_ALBEDO = 0.6
+
+
 def render_sphere(
-    cameras: Cameras, env: EnvironmentMap, *, empty: bool = False
+    cameras: Cameras, env: EnvironmentMap, *, empty: bool = False, plain: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact renders of the painted sphere.
 
@@ -104,6 +107,7 @@ def render_sphere(
         cameras: the views.
         env: world-frame lighting (Blender convention).
         empty: render no object (every pixel background), for the "no object" stability case.
+        plain: paint no pattern (albedo `PLAIN_ALBEDO` everywhere): a scene that needs low VM ranks.
 
     Returns:
         `[V, H, W, 3]` straight sRGB in [0, 1] (0 where alpha is 0) and `[V, H, W]` alpha in {0, 1}.
@@ -120,7 +124,8 @@ def render_sphere(
     n = p / SPHERE_RADIUS
     rgb_linear = np.zeros_like(p)
     if hit.any():
-        rgb_linear[hit] = albedo(p[hit]) * irradiance(env, n[hit]) / math.pi
+        rho = np.full_like(p[hit], PLAIN_ALBEDO) if plain else albedo(p[hit])
+        rgb_linear[hit] = rho * irradiance(env, n[hit]) / math.pi
     rgb_srgb = _srgb(np.clip(rgb_linear, 0.0, 1.0)) * hit[:, None]
     shape = (cameras.num_views, cameras.height, cameras.width)
     return rgb_srgb.reshape(*shape, 3), hit.reshape(shape).astype(np.float64)
@@ -136,10 +141,18 @@ def quantize8(x: np.ndarray) -> np.ndarray:
 
 
 def sphere_viewset(
-    cameras: Cameras, env: EnvironmentMap, *, lighting_index: int = 0, empty: bool = False
+    cameras: Cameras,
+    env: EnvironmentMap,
+    *,
+    lighting_index: int = 0,
+    empty: bool = False,
+    plain: bool = False,
 ) -> ViewSet:
-    """An in-memory `ViewSet` of the sphere (composited over white, 8-bit quantised), no disk."""
-    rgb, alpha = render_sphere(cameras, env, empty=empty)
+    """An in-memory `ViewSet` of the sphere (composited over white, 8-bit quantised), no disk.
+
+    `empty` and `plain` are as in `render_sphere`.
+    """
+    rgb, alpha = render_sphere(cameras, env, empty=empty, plain=plain)
     rgb, alpha = quantize8(rgb), quantize8(alpha)
     over = rgb * alpha[..., None] + (1.0 - alpha[..., None])
     return ViewSet(

@@ -17,9 +17,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -136,6 +137,39 @@ class RunSummary:
     images: int
     seconds: float
     image_seconds: tuple[float, ...]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObjectResult:
+    """What `render_object` did for one object (the unit of work of every backend).
+
+    Attributes:
+        object_id: the object.
+        failure: None when the object is complete, else why it was given up on.
+        image_seconds: per-image render times reported by the workers, all attempts included.
+    """
+
+    object_id: str
+    failure: FailureRecord | None
+    image_seconds: tuple[float, ...]
+
+
+class Dispatch(Protocol):
+    """Runs `render_object` for each plan and yields the results as objects finish (any order).
+
+    `on_image(seconds)` is called once per rendered image, from any thread, as soon as the backend
+    knows of it. `dispatch_local` is the default; `gaffer_data.render.ray_backend.RayDispatch`
+    spreads the objects over a Ray cluster.
+    """
+
+    def __call__(
+        self,
+        plans: Sequence[ObjectPlan],
+        out: Path,
+        options: "RunOptions",
+        threads: int,
+        on_image: Callable[[float], None],
+    ) -> Iterator[ObjectResult]: ...
 
 
 def _file_records(plan: ObjectPlan, root: Path) -> list[FileRecord]:
@@ -310,6 +344,8 @@ def render_dataset(
     out: str | Path,
     config: RenderConfig,
     options: RunOptions | None = None,
+    *,
+    dispatch: Dispatch | None = None,
 ) -> RunSummary:
     """Render every object of this shard that is not complete yet.
 
@@ -319,6 +355,9 @@ def render_dataset(
         out: the dataset folder (created).
         config: what to render.
         options: how to run it.
+        dispatch: where the objects run (`dispatch_local` by default: worker subprocesses on this
+            machine). Every backend renders each object with `render_object`, so the outputs are the
+            same.
 
     Returns:
         A summary of the run.
@@ -357,56 +396,18 @@ def render_dataset(
             image_seconds.append(seconds)
             bar.update(1)
 
-    def run_one(plan: ObjectPlan) -> FailureRecord | None:
-        root = out / OBJECTS_DIR / plan.object_id
-        source = Path(plan.source)
-        if not source.is_file():
-            return FailureRecord(
-                object_id=plan.object_id,
-                source=plan.source,
-                attempts=0,
-                reason="source file is missing",
-            )
-        source_sha = sha256_file(source)
-        reason = ""
-        for attempt in range(1, options.retries + 2):
-            _prepare_folder(plan, root)
-            ok, reason = _run_worker(plan, root, options, threads, on_image)
-            if ok:
-                try:
-                    _finish_object(plan, root, source_sha)
-                    return None
-                except (ManifestError, OSError) as exc:
-                    reason = f"finishing failed: {exc}"
-            logger.warning("%s: attempt %d failed: %s", plan.object_id, attempt, reason)
-            if reason.startswith("input:"):
-                return FailureRecord(
-                    object_id=plan.object_id, source=plan.source, attempts=attempt, reason=reason
-                )
-        return FailureRecord(
-            object_id=plan.object_id,
-            source=plan.source,
-            attempts=options.retries + 1,
-            reason=reason,
-        )
-
     failures: list[FailureRecord] = []
     rendered: list[str] = []
     failures_path = out / FAILURES_NAME
-    with concurrent.futures.ThreadPoolExecutor(max_workers=options.workers) as pool_exec:
-        futures = {pool_exec.submit(run_one, p): p for p in plans}
-        for future in concurrent.futures.as_completed(futures):
-            plan = futures[future]
-            failure = future.result()
-            if failure is None:
-                rendered.append(plan.object_id)
-            else:
-                failures.append(failure)
-                with lock, open(failures_path, "a", encoding="utf-8") as fh:
-                    fh.write(
-                        json.dumps({**dataclasses.asdict(failure), "time_utc": utc_now()}) + "\n"
-                    )
-            bar.set_postfix(done=len(rendered) + len(skipped), failed=len(failures))
+    for result in (dispatch or dispatch_local)(plans, out, options, threads, on_image):
+        failure = result.failure
+        if failure is None:
+            rendered.append(result.object_id)
+        else:
+            failures.append(failure)
+            with lock, open(failures_path, "a", encoding="utf-8") as fh:
+                fh.write(json.dumps({**dataclasses.asdict(failure), "time_utc": utc_now()}) + "\n")
+        bar.set_postfix(done=len(rendered) + len(skipped), failed=len(failures))
     bar.close()
     keep = {f.object_id: f for f in earlier}
     keep.update({f.object_id: f for f in failures})
@@ -419,6 +420,93 @@ def render_dataset(
         seconds=time.perf_counter() - start,
         image_seconds=tuple(image_seconds),
     )
+
+
+def render_object(
+    plan: ObjectPlan,
+    out: Path,
+    options: RunOptions,
+    threads: int,
+    on_image: Callable[[float], None] | None = None,
+) -> ObjectResult:
+    """Render one planned object into `out/objects/<id>` in Blender worker subprocesses, with retries.
+
+    Every backend calls this, so outputs, resume behaviour and failure records do not depend on where
+    an object runs. Input errors (a broken mesh) are not retried.
+
+    Args:
+        plan: the object's plan (`gaffer_data.render.plan.plan_for`).
+        out: the dataset folder.
+        options: `retries`, `timeout_s` and `python` are used.
+        threads: Cycles threads of the worker.
+        on_image: called with each image's render time as the worker reports it.
+
+    Returns:
+        The result; the object is complete (its manifest written) iff `failure` is None.
+    """
+    root = out / OBJECTS_DIR / plan.object_id
+    seconds: list[float] = []
+
+    def record(s: float) -> None:
+        seconds.append(s)
+        if on_image is not None:
+            on_image(s)
+
+    def result(failure: FailureRecord | None) -> ObjectResult:
+        return ObjectResult(object_id=plan.object_id, failure=failure, image_seconds=tuple(seconds))
+
+    source = Path(plan.source)
+    if not source.is_file():
+        return result(
+            FailureRecord(
+                object_id=plan.object_id,
+                source=plan.source,
+                attempts=0,
+                reason="source file is missing",
+            )
+        )
+    source_sha = sha256_file(source)
+    reason = ""
+    for attempt in range(1, options.retries + 2):
+        _prepare_folder(plan, root)
+        ok, reason = _run_worker(plan, root, options, threads, record)
+        if ok:
+            try:
+                _finish_object(plan, root, source_sha)
+                return result(None)
+            except (ManifestError, OSError) as exc:
+                reason = f"finishing failed: {exc}"
+        logger.warning("%s: attempt %d failed: %s", plan.object_id, attempt, reason)
+        if reason.startswith("input:"):
+            return result(
+                FailureRecord(
+                    object_id=plan.object_id, source=plan.source, attempts=attempt, reason=reason
+                )
+            )
+    return result(
+        FailureRecord(
+            object_id=plan.object_id,
+            source=plan.source,
+            attempts=options.retries + 1,
+            reason=reason,
+        )
+    )
+
+
+def dispatch_local(
+    plans: Sequence[ObjectPlan],
+    out: Path,
+    options: RunOptions,
+    threads: int,
+    on_image: Callable[[float], None],
+) -> Iterator[ObjectResult]:
+    """The local backend: `options.workers` objects at once, each in its own worker subprocess."""
+    with concurrent.futures.ThreadPoolExecutor(max_workers=options.workers) as pool_exec:
+        futures = [
+            pool_exec.submit(render_object, p, out, options, threads, on_image) for p in plans
+        ]
+        for future in concurrent.futures.as_completed(futures):
+            yield future.result()
 
 
 class _NoBar:

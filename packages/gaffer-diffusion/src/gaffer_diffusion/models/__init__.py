@@ -9,10 +9,12 @@ from gaffer_diffusion.models.build import (
     config_from_modules,
 )
 from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.pixel import PixelAutoencoder
 from gaffer_diffusion.models.surgery import expand_conv_in
 
 __all__ = [
     "NeuralGafferModel",
+    "PixelAutoencoder",
     "build_image_encoder",
     "build_model",
     "build_scheduler",

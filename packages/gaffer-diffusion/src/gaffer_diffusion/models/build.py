@@ -15,6 +15,7 @@ from gaffer_diffusion.configs import (
     VAEConfig,
 )
 from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.pixel import PixelAutoencoder
 
 
 def build_unet(config: UNetConfig) -> UNet2DConditionModel:
@@ -22,8 +23,13 @@ def build_unet(config: UNetConfig) -> UNet2DConditionModel:
     return UNet2DConditionModel(**config.to_diffusers())
 
 
-def build_vae(config: VAEConfig) -> AutoencoderKL:
-    """A random-initialised `AutoencoderKL` with the given shapes."""
+def build_vae(config: VAEConfig) -> AutoencoderKL | PixelAutoencoder:
+    """A random-initialised `AutoencoderKL` with the given shapes, or the `PixelAutoencoder` of
+    `kind="pixel"` (no parameters)."""
+    if config.kind == "pixel":
+        return PixelAutoencoder(
+            sample_size=config.sample_size, scaling_factor=config.scaling_factor
+        )
     return AutoencoderKL(**config.to_diffusers())
 
 
@@ -69,7 +75,7 @@ def _pick(cls: type, source: dict[str, Any]) -> dict[str, Any]:
 
 def config_from_modules(
     unet: UNet2DConditionModel,
-    vae: AutoencoderKL,
+    vae: AutoencoderKL | PixelAutoencoder,
     image_encoder: CLIPVisionModelWithProjection,
     scheduler_config: dict[str, Any] | None = None,
     *,
@@ -87,9 +93,17 @@ def config_from_modules(
     Raises:
         ConfigError: when the modules do not fit together.
     """
-    vae_cfg = _pick(VAEConfig, dict(vae.config))
-    vae_cfg["block_out_channels"] = tuple(vae.config.block_out_channels)
-    vae_config = VAEConfig(**vae_cfg)
+    if isinstance(vae, PixelAutoencoder):
+        vae_config = VAEConfig(
+            kind="pixel",
+            scaling_factor=vae.config.scaling_factor,
+            sample_size=vae.config.sample_size,
+        )
+    else:
+        vae_cfg = _pick(VAEConfig, dict(vae.config))
+        vae_cfg["block_out_channels"] = tuple(vae.config.block_out_channels)
+        vae_cfg.pop("kind", None)
+        vae_config = VAEConfig(**vae_cfg)
     unet_config = UNetConfig(**_pick(UNetConfig, dict(unet.config)))
     enc_config = ImageEncoderConfig(**_pick(ImageEncoderConfig, image_encoder.config.to_dict()))
     sched = SchedulerConfig(**_pick(SchedulerConfig, dict(scheduler_config or {})))

@@ -7,6 +7,7 @@ from diffusers import AutoencoderKL, UNet2DConditionModel
 from transformers import CLIPVisionModelWithProjection
 
 from gaffer_diffusion.configs import ModelConfig
+from gaffer_diffusion.models.pixel import PixelAutoencoder
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -19,13 +20,14 @@ class NeuralGafferModel:
     Attributes:
         config: the shapes these modules were built with (for loaded weights: read from their configs).
         unet: the 16-input-channel denoiser.
-        vae: the SD autoencoder (frozen in training).
+        vae: the SD autoencoder (frozen in training), or the exact `PixelAutoencoder` of pixel-space
+            models (`VAEConfig.kind="pixel"`).
         image_encoder: CLIP vision tower with projection (frozen in training).
     """
 
     config: ModelConfig
     unet: UNet2DConditionModel
-    vae: AutoencoderKL
+    vae: AutoencoderKL | PixelAutoencoder
     image_encoder: CLIPVisionModelWithProjection
 
     def to(

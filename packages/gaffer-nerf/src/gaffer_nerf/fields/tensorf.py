@@ -127,7 +127,7 @@ class TensoRFVM(nn.Module):
         config: ranks, shading network and ray-marching settings.
         scene: initial bounding box, near/far and background.
         grid_size: initial voxels per axis (x, y, z).
-        generator: RNG for the factor initialisation (None: torch's global RNG).
+        generator: RNG for the initialisation of the factors and the networks (None: torch's global RNG).
 
     Example:
         >>> from gaffer_nerf.configs import fit_preset
@@ -157,10 +157,17 @@ class TensoRFVM(nn.Module):
         self.appearance_planes, self.appearance_lines = _init_vm(
             config.appearance_ranks, self.grid_size, s, generator
         )
-        self.basis_mat = nn.Linear(sum(config.appearance_ranks), config.appearance_dim, bias=False)
-        self.mlp = FeatureMLP(
-            config.appearance_dim, config.view_pe, config.feature_pe, config.mlp_hidden
-        )
+        # nn.Linear initialises from torch's global RNG; with a generator, seed a forked global RNG
+        # from it so that one seed fixes the whole field (and the caller's RNG state is untouched).
+        with torch.random.fork_rng(devices=[], enabled=generator is not None):
+            if generator is not None:
+                torch.manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator)))
+            self.basis_mat = nn.Linear(
+                sum(config.appearance_ranks), config.appearance_dim, bias=False
+            )
+            self.mlp = FeatureMLP(
+                config.appearance_dim, config.view_pe, config.feature_pe, config.mlp_hidden
+            )
         self.alpha_volume: Tensor | None = None  # [1, 1, Z, Y, X] in {0, 1}
         self.alpha_aabb: Tensor | None = None  # [2, 3]
 

@@ -1,11 +1,17 @@
 """Relighting a radiance field with the diffusion prior: Stage 1, Stage 2, and the whole run."""
 
 from gaffer_nerf.relight._common import StageReport
-from gaffer_nerf.relight.run import RelightReport, RelightResult, relight_field
+from gaffer_nerf.relight.run import (
+    NothingToRelightWarning,
+    RelightReport,
+    RelightResult,
+    relight_field,
+)
 from gaffer_nerf.relight.stage1 import run_stage1
 from gaffer_nerf.relight.stage2 import image_tv, run_stage2
 
 __all__ = [
+    "NothingToRelightWarning",
     "RelightReport",
     "RelightResult",
     "StageReport",

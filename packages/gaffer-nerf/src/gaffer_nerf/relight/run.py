@@ -11,6 +11,7 @@ The input field is not modified: a deep copy is relit and returned.
 
 import copy
 import time
+import warnings
 from dataclasses import dataclass
 
 import torch
@@ -28,6 +29,10 @@ from gaffer_nerf.relight._common import StageReport
 from gaffer_nerf.relight.stage1 import run_stage1
 from gaffer_nerf.relight.stage2 import run_stage2
 from gaffer_nerf.rendering import build_weight_cache
+
+
+class NothingToRelightWarning(UserWarning):
+    """The frozen density leaves no sample on any training ray: the relit field stays as it was."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -112,6 +117,14 @@ def relight_field(
     t0 = time.perf_counter()
     cache = build_weight_cache(out, train.cameras.rays().to(device))
     cache_s = time.perf_counter() - t0
+    if cache.num_samples == 0:
+        warnings.warn(
+            "The fitted field is empty along every training ray (no object, or an empty alpha "
+            "mask), so there is no appearance to relight; the stages run without updates and the "
+            "field is returned unchanged. Check the fit (its alpha mask and held-out PSNR).",
+            NothingToRelightWarning,
+            stacklevel=2,
+        )
 
     t0 = time.perf_counter()
     images = train.rgb_srgb.permute(0, 3, 1, 2).contiguous()  # [V, 3, H, W] channels-first boundary

@@ -65,9 +65,10 @@ def run_stage1(
             raise NonFiniteError(
                 f"Stage 1 loss is {float(loss.detach())} at step {step}; lower `Stage1Config.lr_grid`."
             )
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+        if loss.requires_grad:  # else no ray of the batch has a sample: nothing to fit
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
         for g in opt.param_groups:
             g["lr"] *= decay
         losses.append(float(loss.detach()))

@@ -96,9 +96,10 @@ def run_stage2(
                 f"Stage 2 ({config.loss}) loss is {float(loss.detach())} at step {step}; lower the learning "
                 "rates or, for SDS, `sds_weight`."
             )
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+        if loss.requires_grad:  # else the view holds no sample: nothing to fit
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
         for g in opt.param_groups:
             g["lr"] *= config.lr_gamma
         losses.append(float(loss.detach()))

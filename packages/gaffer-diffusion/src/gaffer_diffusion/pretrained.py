@@ -1,0 +1,74 @@
+"""`gaffer-tiny`: the small pixel-space relighting model trained by this project and shipped in the wheel.
+
+The weights live in `gaffer_diffusion/weights/gaffer-tiny/` in our own format (`save_pretrained`), with
+`MODEL_CARD.md` (data, commands, training time, held-out numbers). A held-out example object rendered
+with gaffer-data lives in `gaffer_diffusion/data/example/` (`example_dataset_path()`).
+
+Example:
+    >>> from gaffer_diffusion import RelightPipeline
+    >>> from gaffer_diffusion.pretrained import load_gaffer_tiny
+    >>> pipe = RelightPipeline(load_gaffer_tiny().model)  # doctest: +SKIP
+"""
+
+from importlib import resources
+from pathlib import Path
+
+from gaffer_diffusion.errors import CheckpointNotFoundError
+from gaffer_diffusion.loading import MANIFEST_NAME, LoadResult, load_pretrained
+
+GAFFER_TINY_STEPS = 20
+"""DDIM steps gaffer-tiny was evaluated with (its model card's numbers); the suggested default."""
+
+GAFFER_TINY_GUIDANCE = 1.0
+"""Classifier-free guidance scale gaffer-tiny was evaluated with."""
+
+_HOW = (
+    "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
+    "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
+    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json` (see its "
+    "MODEL_CARD.md) and load that run's `final/` folder with `gaffer_diffusion.loading.load_pretrained`."
+)
+
+
+def _package_dir(*parts: str) -> Path:
+    return Path(str(resources.files("gaffer_diffusion").joinpath(*parts)))
+
+
+def gaffer_tiny_path() -> Path:
+    """The folder of the shipped gaffer-tiny weights (it may be missing in a stripped install)."""
+    return _package_dir("weights", "gaffer-tiny")
+
+
+def example_dataset_path() -> Path:
+    """The shipped held-out example object, a gaffer-data render folder (`dataset.json`, `objects/`)."""
+    return _package_dir("data", "example")
+
+
+def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
+    """Load gaffer-tiny (float32, CPU, eval mode); `RelightPipeline(load_gaffer_tiny().model)` samples.
+
+    Args:
+        strict: refuse weights that do not match the config (see `load_pretrained`).
+
+    Raises:
+        CheckpointNotFoundError: the weights folder, its manifest or a weights file is missing; the
+            message names the file and how to get it.
+    """
+    root = gaffer_tiny_path()
+    weights = root / "unet" / "diffusion_pytorch_model.safetensors"
+    for needed, what in (
+        (root / MANIFEST_NAME, "the gaffer-tiny manifest"),
+        (weights, "the gaffer-tiny UNet weights"),
+    ):
+        if not needed.is_file():
+            raise CheckpointNotFoundError(what, [needed], _HOW)
+    return load_pretrained(root, strict=strict)
+
+
+__all__ = [
+    "GAFFER_TINY_GUIDANCE",
+    "GAFFER_TINY_STEPS",
+    "example_dataset_path",
+    "gaffer_tiny_path",
+    "load_gaffer_tiny",
+]

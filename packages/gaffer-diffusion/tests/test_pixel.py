@@ -1,0 +1,160 @@
+"""Pixel-space models (`VAEConfig.kind="pixel"`), the `gaffer-tiny` preset and `gaffer_diffusion.pretrained`."""
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from gaffer_diffusion import (
+    ConfigError,
+    RelightPipeline,
+    SamplingConfig,
+    VAEConfig,
+    get_preset,
+)
+from gaffer_diffusion.configs import ModelConfig
+from gaffer_diffusion.errors import CheckpointNotFoundError
+from gaffer_diffusion.loading import load_pretrained, model_config_matches, save_pretrained
+from gaffer_diffusion.models import PixelAutoencoder, build_vae
+from gaffer_diffusion.testing import random_conditions
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def _small_pixel_config() -> ModelConfig:
+    """The `tiny` UNet and CLIP tower on a pixel-space "VAE" at 32 px (fast)."""
+    tiny = get_preset("tiny")
+    return dataclasses.replace(
+        tiny,
+        name="tiny-pixel",
+        resolution=32,
+        unet=dataclasses.replace(tiny.unet, sample_size=32),
+        vae=VAEConfig(kind="pixel", scaling_factor=1.0, sample_size=32),
+    )
+
+
+def test_encode_decode_round_trip_is_exact() -> None:
+    ae = build_vae(VAEConfig(kind="pixel", scaling_factor=1.0, sample_size=16))
+    assert isinstance(ae, PixelAutoencoder)
+    assert list(p.numel() for p in ae.parameters()) == [0]
+    x = torch.rand(3, 3, 16, 16, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    post = ae.encode(x).latent_dist
+    z = post.mode()
+    assert z.shape == (3, 4, 16, 16)
+    assert torch.equal(post.sample(generator=torch.Generator()), z)
+    assert torch.equal(z[:, :3], x)
+    luma = 0.2126 * x[:, 0] + 0.7152 * x[:, 1] + 0.0722 * x[:, 2]
+    torch.testing.assert_close(z[:, 3], luma)
+    assert torch.equal(ae.decode(z).sample, x)
+    assert torch.equal(post.kl(), torch.zeros(3))
+
+
+def test_pixel_config_downsampling_and_validation() -> None:
+    cfg = _small_pixel_config()
+    assert cfg.vae.downsampling_factor == 1 and cfg.latent_size == 32
+    with pytest.raises(ConfigError, match=r"vae\.kind"):
+        VAEConfig(kind="vq")  # type: ignore[arg-type]
+    with pytest.raises(ConfigError, match=r"vae\.scaling_factor"):
+        VAEConfig(kind="pixel", scaling_factor=0.0)
+    with pytest.raises(ConfigError, match=r"vae\.kind"):
+        VAEConfig(kind="pixel").to_diffusers()
+    with pytest.raises(ConfigError, match=r"unet\.sample_size"):
+        dataclasses.replace(cfg, unet=dataclasses.replace(cfg.unet, sample_size=4))
+
+
+def test_pipeline_runs_in_pixel_space_and_moves_dtype() -> None:
+    model = _small_pixel_config().setup(seed=0)
+    pipe = RelightPipeline(model)
+    out = pipe(random_conditions(2, 32), SamplingConfig(num_inference_steps=2), seeds=[0, 1])
+    assert out.images.shape == (2, 3, 32, 32) and out.latents.shape == (2, 4, 32, 32)
+    assert torch.isfinite(out.images).all()
+    assert float(out.images.min()) >= 0 and float(out.images.max()) <= 1
+    model.to(dtype=torch.bfloat16)
+    assert next(model.vae.parameters()).dtype == torch.bfloat16
+
+
+def test_save_and_load_pixel_model(tmp_path: Path) -> None:
+    model = _small_pixel_config().setup(seed=0)
+    save_pretrained(model, tmp_path / "m")
+    vae_cfg = json.loads((tmp_path / "m" / "vae" / "config.json").read_text())
+    assert vae_cfg["_class_name"] == "PixelAutoencoder" and vae_cfg["kind"] == "pixel"
+    loaded = load_pretrained(tmp_path / "m").model
+    assert isinstance(loaded.vae, PixelAutoencoder)
+    assert model_config_matches(loaded.config, model.config)
+    for a, b in zip(model.unet.parameters(), loaded.unet.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_gaffer_tiny_preset_shapes() -> None:
+    cfg = get_preset("gaffer-tiny")
+    assert cfg.vae.kind == "pixel" and cfg.resolution == 64 and cfg.latent_size == 64
+    assert cfg.unet.in_channels == 16 and cfg.unet.sample_size == 64
+    model = cfg.setup(seed=0)
+    n = sum(p.numel() for p in model.unet.parameters())
+    assert 1_000_000 < n < 6_000_000  # float32 safetensors well under 25 MB
+
+
+def test_training_loop_trains_a_pixel_model(tmp_path: Path) -> None:
+    pytest.importorskip("gaffer_data")
+    pytest.importorskip("accelerate")
+    from gaffer_diffusion.training import TrainConfig, load_checkpoint_model, train
+    from gaffer_diffusion.training.testing import write_synthetic_dataset
+
+    root = write_synthetic_dataset(tmp_path / "data", objects=2, views=2, lightings=3)
+    cfg = TrainConfig.from_dict(
+        {
+            "output_dir": str(tmp_path / "run"),
+            "model": {"init": "preset", "preset": "gaffer-tiny", "resolution": 32},
+            "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
+            "optim": {"lr": 1e-3, "warmup_steps": 1},
+            "train": {
+                "max_steps": 2,
+                "batch_size": 2,
+                "mixed_precision": "no",
+                "gradient_checkpointing": False,
+                "ema_decay": 0.9,
+            },
+            "checkpoint": {"every_steps": 2, "keep": 1},
+            "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
+            "validation": {"every_steps": 0},
+        }
+    )
+    result = train(cfg)
+    assert result.step == 2 and all(torch.isfinite(torch.tensor(result.losses)))
+    model = load_checkpoint_model(result.checkpoint)
+    assert isinstance(model.vae, PixelAutoencoder) and model.config.resolution == 32
+    assert result.final_model is not None
+    assert isinstance(load_pretrained(result.final_model).model.vae, PixelAutoencoder)
+
+
+def test_load_gaffer_tiny_names_the_missing_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from gaffer_diffusion import pretrained
+
+    monkeypatch.setattr(pretrained, "gaffer_tiny_path", lambda: tmp_path / "gone")
+    with pytest.raises(CheckpointNotFoundError, match=r"gaffer_model\.json"):
+        pretrained.load_gaffer_tiny()
+
+
+def test_shipped_gaffer_tiny_loads_and_relights_the_example() -> None:
+    from gaffer_diffusion import pretrained
+
+    if not (pretrained.gaffer_tiny_path() / "gaffer_model.json").is_file():
+        pytest.skip("gaffer-tiny weights are not in this checkout")
+    model = pretrained.load_gaffer_tiny().model
+    assert model.config.name == "gaffer-tiny" and model.config.vae.kind == "pixel"
+    example = pretrained.example_dataset_path()
+    assert (example / "dataset.json").is_file()
+    weights = pretrained.gaffer_tiny_path() / "unet" / "diffusion_pytorch_model.safetensors"
+    assert weights.stat().st_size < 25 * 2**20
+    out = RelightPipeline(model)(random_conditions(1, 64), SamplingConfig(num_inference_steps=2))
+    assert out.images.shape == (1, 3, 64, 64)
