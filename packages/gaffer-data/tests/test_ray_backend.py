@@ -3,16 +3,17 @@
 import importlib.util
 import json
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ray = pytest.importorskip("ray")
+pytest.importorskip("ray")
 # The Ray tasks start Blender workers; this process must never import bpy, so only look it up.
 if importlib.util.find_spec("bpy") is None:
     pytest.skip("bpy is not installed (gaffer-data[render])", allow_module_level=True)
+
+import ray
 
 from gaffer_data.cli import main
 from gaffer_data.dataset import open_dataset, read_object
@@ -54,9 +55,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 @pytest.fixture(scope="module")
 def local_ray():
     # One small instance for the module (starting Ray takes seconds); RayDispatch joins it as is.
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
 
@@ -105,7 +104,7 @@ def test_ray_outputs_equal_local_outputs(rendered) -> None:
 
 
 def test_ray_records_failures_like_local(rendered) -> None:
-    out_local, local, out_ray, remote = rendered
+    _, local, out_ray, remote = rendered
     assert [f.object_id for f in remote.failed] == ["broken"]
     assert remote.failed[0].attempts == local.failed[0].attempts == 1  # input errors: no retry
     assert "broken.glb" in remote.failed[0].reason
@@ -150,3 +149,17 @@ def test_ray_only_options_need_the_ray_backend(
     assert "--backend ray" in capsys.readouterr().err
     with pytest.raises(ValueError, match="cpus_per_task"):
         RayOptions(cpus_per_task=0)
+
+
+def test_cli_backend_ray(
+    local_ray, inputs, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    envmaps = inputs[1]
+    write_cube_obj(tmp_path / "objects" / "cube.obj")
+    argv = ["render", "--objects", str(tmp_path / "objects"), "--envmaps", str(envmaps)]
+    argv += ["--out", str(tmp_path / "out"), "--views", "1", "--lightings", "1"]
+    argv += ["--resolution", "32", "--samples", "4", "--no-denoise", "--world-map-resolution", "64"]
+    argv += ["--no-progress", "--backend", "ray", "--cpus-per-task", "1"]
+    assert main(argv) == 0
+    assert "rendered 1 objects (2 images" in capsys.readouterr().out
+    assert open_dataset(tmp_path / "out").object_ids == ("cube",)

@@ -25,6 +25,7 @@ from gaffer_data.dataset import (
     read_object,
 )
 from gaffer_data.errors import (
+    ClusterError,
     ConfigError,
     GafferDataError,
     GafferSchemaWarning,
@@ -43,6 +44,7 @@ __all__ = [
     "AuthorsSample",
     "BounceConfig",
     "CameraConfig",
+    "ClusterError",
     "ConfigError",
     "GafferDataError",
     "GafferSchemaWarning",

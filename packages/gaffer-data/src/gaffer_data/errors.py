@@ -38,6 +38,10 @@ class RenderError(GafferDataError, RuntimeError):
     """A Blender worker failed to render an object (after its retries)."""
 
 
+class ClusterError(GafferDataError, ConnectionError):
+    """The Ray cluster given to `--backend ray` cannot be reached."""
+
+
 class MissingDependencyError(GafferDataError, ImportError):
     """An optional dependency is needed for this call; the message holds the exact pip command."""
 

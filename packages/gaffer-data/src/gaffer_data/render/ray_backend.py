@@ -19,7 +19,7 @@ from pathlib import Path
 from types import ModuleType
 
 from gaffer_data.dataset.schema import FailureRecord, ObjectPlan
-from gaffer_data.errors import ConfigError, MissingDependencyError
+from gaffer_data.errors import ClusterError, ConfigError, MissingDependencyError
 from gaffer_data.render.runner import ObjectResult, RunOptions, render_object
 
 logger = logging.getLogger(__name__)
@@ -48,7 +48,7 @@ class RayOptions:
     """Where and how big the Ray tasks are (none of it changes the images).
 
     Attributes:
-        address: the cluster to join (`ray.init(address=...)`, e.g. "ray://head:10001" or "auto");
+        address: the cluster to join (`ray.init(address=...)`, e.g. "auto" or "HEAD_IP:6379");
             None reads `RAY_ADDRESS`, and without it a local Ray instance with
             `workers * cpus_per_task` CPUs is started for the run and shut down after it.
         cpus_per_task: Ray `num_cpus` of each object's task, also its Cycles thread count unless the
@@ -81,6 +81,7 @@ class RayDispatch:
 
     Raises:
         MissingDependencyError: ray is not installed (raised on construction).
+        ClusterError: the cluster cannot be joined (raised when the run starts).
     """
 
     def __init__(self, ray_options: RayOptions | None = None) -> None:
@@ -95,7 +96,15 @@ class RayDispatch:
         address = self.ray_options.address or os.environ.get(RAY_ADDRESS_ENV) or None
         if address is not None:
             logger.info("joining the Ray cluster at %s", address)
-            ray.init(address=address)
+            try:
+                ray.init(address=address)
+            except (ConnectionError, RuntimeError) as exc:
+                raise ClusterError(
+                    f"cannot join the Ray cluster at `--ray-address`={address!r} ({exc}). Check "
+                    "`ray status` on its head node; for a `ray start` cluster on this machine, "
+                    "`--ray-address auto` also works; without `--ray-address` and "
+                    f"{RAY_ADDRESS_ENV} a local instance is started."
+                ) from exc
         else:
             # address="local": a fresh instance even when a `ray start` cluster runs on this machine.
             logger.info("starting a local Ray instance with %d CPUs", num_cpus)
@@ -129,7 +138,8 @@ class RayDispatch:
             refs = {task.remote(p, root, options, blender_threads, python): p for p in plans}
             pending = list(refs)
             while pending:
-                done, pending = ray.wait(pending, num_returns=1)
+                # Whatever finished within a second: one wait per object would be O(N^2) for big runs.
+                done, pending = ray.wait(pending, num_returns=len(pending), timeout=1.0)
                 for ref in done:
                     result = self._result(ref, refs[ref], options)
                     for seconds in result.image_seconds:
