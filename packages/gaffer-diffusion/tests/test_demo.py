@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
 
 pytest.importorskip("gaffer_data")
@@ -105,6 +106,22 @@ def test_metrics_json_has_scores_baselines_and_timings(demo_out) -> None:
     assert len(t["sampling_batches_s"]) == math.ceil((2 + _bundled_count() + FRAMES) / 8)
     assert 0 < t["sampling_per_image_s"] < t["sampling_s"] <= t["total_s"]
     assert m["turntable"]["frames"] == FRAMES and m["turntable"]["gif"] == "turntable.gif"
+
+
+def test_target_maps_are_the_evaluation_maps_and_the_turntable_starts_there(example) -> None:
+    from gaffer_diffusion.demo import _lightings, _read_example
+    from gaffer_diffusion.evaluation import pair_lighting
+
+    ex = _read_example(example, "auto", 64)
+    jobs = _lightings(ex, DemoConfig(out=Path("unused"), frames=4, extra_hdris=False), 64)
+    targets = [j for j in jobs if j.kind == "target"]
+    frames = [j for j in jobs if j.kind == "turntable"]
+    assert len(targets) == 2 and len(frames) == 4
+    ref = pair_lighting(ex.pairs, 64, "neural-gaffer")
+    torch.testing.assert_close(torch.cat([j.maps.ldr for j in targets]), ref.ldr)
+    torch.testing.assert_close(torch.cat([j.maps.hdr for j in targets]), ref.hdr)
+    torch.testing.assert_close(frames[0].maps.ldr, targets[0].maps.ldr, atol=1e-5, rtol=0)
+    assert not torch.allclose(frames[1].maps.hdr, frames[0].maps.hdr)
 
 
 def test_demo_is_batch_invariant(tmp_path, model_dir, example, demo_out) -> None:

@@ -50,7 +50,6 @@ from gaffer_diffusion.evaluation import (
     EvalPair,
     InputLighting,
     dataset_pairs,
-    pair_lighting,
     quantize_8bit,
 )
 from gaffer_diffusion.loading import MANIFEST_NAME, load_pretrained
@@ -344,8 +343,7 @@ class _Lighting:
     label: str
     kind: Literal["target", "extra", "turntable"]
     world_rgb: np.ndarray | None  # [He, We, 3] uint8 preview, once per map
-    ldr: Tensor  # [1, 3, S, S]
-    hdr: Tensor
+    maps: LightingMaps  # [1, 3, S, S] E_L and E_H
 
 
 def _label(lt: EnvmapLighting) -> str:
@@ -367,29 +365,49 @@ def _preview(env: Any) -> np.ndarray:
     return tonemap_preview(radiance[::step, ::step])
 
 
+class _Envmaps:
+    """Each env-map file read once per run, then augmented as the renderer did (cf. `pair_lighting`)."""
+
+    def __init__(self) -> None:
+        self._read: dict[Path, Any] = {}
+
+    def get(self, lt: EnvmapLighting) -> Any:
+        from gaffer_envmap import AugmentSpec, EnvironmentMap
+        from gaffer_envmap.io import read_envmap
+
+        if lt.source not in self._read:
+            try:
+                self._read[lt.source] = read_envmap(lt.source, sanitize="zero")
+            except (OSError, ValueError) as exc:
+                raise DatasetError(
+                    f"Could not read the environment map `{lt.source}` of `--example`: {exc}"
+                ) from exc
+        spec = AugmentSpec(flip=lt.flip, yaw_step=lt.yaw_step, num_steps=lt.num_steps)
+        env = spec.apply(self._read[lt.source])
+        if lt.strength != 1.0:
+            radiance = np.asarray(env.radiance_linear) * np.float32(lt.strength)
+            env = EnvironmentMap(radiance_linear=radiance)
+        return env
+
+
 def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighting]:
     from gaffer_diffusion.conditioning import lighting_from_envmap
-    from gaffer_diffusion.evaluation import _augmented_envmap
     from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
 
+    envmaps = _Envmaps()
+    w2c = torch.tensor(example.w2c_blender[None])  # [1, 3, 4], the input view's camera
     jobs: list[_Lighting] = []
-    maps = pair_lighting(example.pairs, size, config.compat)
-    for k, p in enumerate(example.pairs):
+    for p in example.pairs:
         lt = p.lighting
         if not isinstance(lt, EnvmapLighting):  # checked in _read_example
             raise DatasetError(f"`{p.name}` has no environment map.")
-        env = _augmented_envmap(lt.source, lt.flip, lt.yaw_step, lt.num_steps, lt.strength)
+        env = envmaps.get(lt)
+        # Neural Gaffer §3.2: the target map rotated into the input camera's frame, then E_L / E_H
+        m = lighting_from_envmap(env, w2c, size=size, compat=config.compat)
+        key = f"{p.target_lighting:03d}_{lt.source.stem}"
         jobs.append(
-            _Lighting(
-                key=f"{p.target_lighting:03d}_{lt.source.stem}",
-                label=_label(lt),
-                kind="target",
-                world_rgb=_preview(env),
-                ldr=maps.ldr[k : k + 1],
-                hdr=maps.hdr[k : k + 1],
-            )
+            _Lighting(key=key, label=_label(lt), kind="target", world_rgb=_preview(env), maps=m)
         )
-    w2c = torch.tensor(example.w2c_blender[None])  # [1, 3, 4]
     if config.extra_hdris:
         scored = {p.lighting.source.stem for p in example.pairs}  # type: ignore[union-attr]
         for name in sorted(set(bundled_hdris()) - scored):
@@ -397,23 +415,17 @@ def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighti
             m = lighting_from_envmap(env, w2c, size=size, compat=config.compat)
             jobs.append(
                 _Lighting(
-                    key=f"extra_{name}",
-                    label=name,
-                    kind="extra",
-                    world_rgb=_preview(env),
-                    ldr=m.ldr,
-                    hdr=m.hdr,
+                    key=f"extra_{name}", label=name, kind="extra", world_rgb=_preview(env), maps=m
                 )
             )
     if config.frames:
         lt = example.pairs[0].lighting
         if not isinstance(lt, EnvmapLighting):
             raise DatasetError(f"`{example.pairs[0].name}` has no environment map.")
-        env = _augmented_envmap(lt.source, lt.flip, lt.yaw_step, lt.num_steps, lt.strength)
         n = config.frames
         spin = torch.arange(n, dtype=torch.float64) * (360.0 / n)
         m = lighting_from_envmap(
-            env, w2c.expand(n, -1, -1), size=size, compat=config.compat, spin_deg=spin
+            envmaps.get(lt), w2c.expand(n, -1, -1), size=size, compat=config.compat, spin_deg=spin
         )
         for k in range(n):
             jobs.append(
@@ -422,8 +434,7 @@ def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighti
                     label=f"{_label(lt)}, spun {float(spin[k]):.0f} deg about world up",
                     kind="turntable",
                     world_rgb=None,
-                    ldr=m.ldr[k : k + 1],
-                    hdr=m.hdr[k : k + 1],
+                    maps=LightingMaps(ldr=m.ldr[k : k + 1], hdr=m.hdr[k : k + 1]),
                 )
             )
     return jobs
@@ -448,7 +459,8 @@ def _sample(
         cond = RelightingConditions(
             image=image.expand(len(chunk), -1, -1, -1),
             lighting=LightingMaps(
-                ldr=torch.cat([j.ldr for j in chunk]), hdr=torch.cat([j.hdr for j in chunk])
+                ldr=torch.cat([j.maps.ldr for j in chunk]),
+                hdr=torch.cat([j.maps.hdr for j in chunk]),
             ),
         )
         t0 = time.perf_counter()
@@ -755,7 +767,7 @@ def _write_images(
     frame_pngs: list[str] = []
     for k, job in enumerate(jobs):
         relit_u8 = _uint8(relit[k])
-        ldr_u8, hdr_u8 = _uint8(job.ldr[0]), _uint8(job.hdr[0])
+        ldr_u8, hdr_u8 = _uint8(job.maps.ldr[0]), _uint8(job.maps.hdr[0])
         if job.kind == "turntable":
             rel = f"turntable/{job.key}.png"
             _write_png(out / rel, relit_u8)
@@ -782,7 +794,7 @@ def _write_images(
             gt_u8 = _uint8(example.targets[k])
             _write_png(out / entry["ground_truth"], gt_u8)
             row.append(("ground truth", gt_u8))
-        row[0] = (f"{job.key}: {job.label}", job.world_rgb)
+        row[0] = (job.label if job.kind == "target" else f"{job.label} (no render)", job.world_rgb)
         sheet.append([(label, im) for label, im in row if im is not None])
         files[job.key] = entry
     _write_png(out / "overview.png", contact_sheet(sheet, cell=96))
