@@ -158,3 +158,36 @@ def test_shipped_gaffer_tiny_loads_and_relights_the_example() -> None:
     assert weights.stat().st_size < 25 * 2**20
     out = RelightPipeline(model)(random_conditions(1, 64), SamplingConfig(num_inference_steps=2))
     assert out.images.shape == (1, 3, 64, 64)
+
+
+def test_prediction_type_is_validated_and_sets_the_training_target() -> None:
+    from gaffer_diffusion import SchedulerConfig
+    from gaffer_diffusion.training.loop import _prediction_target
+
+    with pytest.raises(ConfigError, match=r"scheduler\.prediction_type"):
+        SchedulerConfig(prediction_type="x0")
+    assert get_preset("gaffer-tiny").scheduler.prediction_type == "v_prediction"
+    z0, noise = torch.full((1, 4, 2, 2), 0.5), torch.full((1, 4, 2, 2), 2.0)
+    abar = torch.full((1, 1, 1, 1), 0.36)
+    assert torch.equal(_prediction_target("epsilon", z0, noise, abar), noise)
+    assert torch.equal(_prediction_target("sample", z0, noise, abar), z0)
+    v = _prediction_target("v_prediction", z0, noise, abar)
+    torch.testing.assert_close(v, torch.full_like(z0, 0.6 * 2.0 - 0.8 * 0.5))
+    with pytest.raises(ConfigError, match=r"scheduler\.prediction_type"):
+        _prediction_target("x0", z0, noise, abar)
+
+
+def test_v_prediction_pipeline_runs() -> None:
+    from gaffer_diffusion import SchedulerConfig
+
+    cfg = dataclasses.replace(
+        _small_pixel_config(), scheduler=SchedulerConfig(prediction_type="v_prediction")
+    )
+    pipe = RelightPipeline(cfg.setup(seed=0))
+    for scheduler in ("ddim", "dpmsolver++", "unipc"):
+        out = pipe(
+            random_conditions(1, 32),
+            SamplingConfig(num_inference_steps=2, scheduler=scheduler, guidance_scale=2.0),
+            seeds=[0],
+        )
+        assert torch.isfinite(out.images).all()

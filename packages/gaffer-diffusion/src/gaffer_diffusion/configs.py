@@ -15,7 +15,7 @@ Presets (`get_preset`):
   milliseconds per forward.
 - `"gaffer-tiny"`: the shipped small model we train ourselves on CPU (`gaffer_diffusion.pretrained`):
   pixel space (`VAEConfig(kind="pixel")`, 64x64 "latents" `[R, G, B, luminance]`), a ~3M-parameter UNet
-  with attention at 16x16, and the `"tiny"` CLIP tower.
+  with attention at 16x16, v-prediction, and the `"tiny"` CLIP tower.
 """
 
 import dataclasses
@@ -34,6 +34,9 @@ VAEKind = Literal["autoencoder-kl", "pixel"]
 `gaffer_diffusion.models.pixel.PixelAutoencoder` (pixel-space diffusion, downsampling factor 1)."""
 
 VAE_KINDS: tuple[VAEKind, ...] = ("autoencoder-kl", "pixel")
+
+PREDICTION_TYPES: tuple[str, ...] = ("epsilon", "v_prediction", "sample")
+"""What the UNet may predict (diffusers' `prediction_type`)."""
 
 LATENT_CHANNELS = 4
 """Channels of one VAE latent; the UNet input is 4 of them: noisy target + 3 conditioning latents."""
@@ -206,7 +209,8 @@ class SchedulerConfig:
         beta_start: 0.00085.
         beta_end: 0.012.
         beta_schedule: "scaled_linear".
-        prediction_type: "epsilon".
+        prediction_type: "epsilon" (the paper's), "v_prediction" or "sample" (x0): what the UNet
+            predicts; the training loss and every sampler follow it.
         steps_offset: 1 (timesteps 981, 961, ..., 1 for 50 DDIM steps).
         timestep_spacing: "leading".
         clip_sample: False.
@@ -222,6 +226,13 @@ class SchedulerConfig:
     timestep_spacing: str = "leading"
     clip_sample: bool = False
     set_alpha_to_one: bool = False
+
+    def __post_init__(self) -> None:
+        if self.prediction_type not in PREDICTION_TYPES:
+            raise ConfigError(
+                f"`scheduler.prediction_type` is {self.prediction_type!r}; expected one of "
+                f"{list(PREDICTION_TYPES)}."
+            )
 
     def to_diffusers(self) -> dict[str, Any]:
         """Keyword arguments for `DDIMScheduler(**kwargs)` (other schedulers ignore unknown keys)."""
@@ -362,6 +373,9 @@ def _gaffer_tiny() -> ModelConfig:
         ),
         vae=VAEConfig(kind="pixel", scaling_factor=1.0, sample_size=64),
         image_encoder=tiny.image_encoder,
+        # v-prediction: with epsilon in pixel space a young model's x0 = (z - sqrt(1 - abar) eps) /
+        # sqrt(abar) amplifies its noise error ~14x at the first DDIM step and samples stay noise
+        scheduler=SchedulerConfig(prediction_type="v_prediction"),
     )
 
 

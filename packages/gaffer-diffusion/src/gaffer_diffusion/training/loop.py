@@ -174,7 +174,8 @@ class _Trainer:
 
     # ---------------------------------------------------------------- one micro-step
     def loss(self, unet: torch.nn.Module, batch: TrainBatch, gen: torch.Generator) -> torch.Tensor:
-        """The epsilon-MSE of one micro-batch (see the module docstring)."""
+        """The MSE of one micro-batch against the scheduler's `prediction_type` target (epsilon by
+        default; see the module docstring and `_prediction_target`)."""
         cfg, dev, m = self.cfg, self.device, self.model
         b, t = batch.batch_size, batch.targets_per_sample
         n = b * t
@@ -219,8 +220,28 @@ class _Trainer:
         z_t = abar.sqrt() * z0 + (1.0 - abar).sqrt() * noise  # forward process q(z_t | z_0)
         with self.acc.autocast():
             # [BT, 16, h, w]  z_t + 3x4 conditioning latents
-            eps = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
-        return F.mse_loss(eps.float(), noise)
+            pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
+        return F.mse_loss(
+            pred.float(), _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
+        )
+
+
+def _prediction_target(
+    prediction_type: str, z0: torch.Tensor, noise: torch.Tensor, abar: torch.Tensor
+) -> torch.Tensor:
+    """What the UNet regresses: the noise ("epsilon", the paper's), the velocity
+    `sqrt(abar) noise - sqrt(1 - abar) z0` ("v_prediction") or the clean latent ("sample")."""
+    match prediction_type:
+        case "epsilon":
+            return noise
+        case "v_prediction":
+            return abar.sqrt() * noise - (1.0 - abar).sqrt() * z0
+        case "sample":
+            return z0
+    raise ConfigError(
+        f"`scheduler.prediction_type` is {prediction_type!r}; expected 'epsilon', 'v_prediction' "
+        "or 'sample'."
+    )
 
 
 class _SigtermFlag:
