@@ -244,6 +244,32 @@ def test_evaluate_dataset_is_batch_invariant_and_merges_reports(dataset, tmp_pat
     assert json.loads(a.to_json())["metrics"]["items"][0]["name"] == pairs[0].name
 
 
+def test_evaluate_dataset_scores_the_unrelit_input_baseline(dataset) -> None:
+    root, _ = dataset
+    pairs = dataset_pairs(root)
+    pipe = RelightPipeline(tiny_model())
+    sampling = SamplingConfig(num_inference_steps=1)
+    on = evaluate_dataset(pipe, pairs, EvaluationConfig(sampling=sampling), perceptual=None)
+    off = evaluate_dataset(
+        pipe, pairs, EvaluationConfig(sampling=sampling, baselines=False), perceptual=None
+    )
+    assert off.baseline is None and "Baseline" not in off.to_markdown()
+    assert on.baseline is not None and len(on.baseline.items) == len(pairs)
+    # the baseline is the input image itself, scored like a prediction against the target
+    from gaffer_diffusion.evaluation import _read_rgba, _to_chw
+
+    p = pairs[0]
+    inp = _to_chw([_read_rgba(p.input_image, 64)[0]])
+    gt = _to_chw([_read_rgba(p.target_image, 64)[0]])
+    direct = evaluate_images(inp, gt, perceptual=None)
+    assert on.baseline.items[0].raw.psnr == pytest.approx(direct.mean_raw.psnr, abs=1e-4)
+    # the discs differ in colour only, so aligning the input's channels to the target must help
+    assert on.baseline.mean_aligned_image.psnr > on.baseline.mean_raw.psnr
+    doc = json.loads(on.to_json())
+    assert doc["baseline_unrelit_input"]["items"][0]["name"] == pairs[0].name
+    assert "Baseline, the unrelit input" in on.to_markdown()
+
+
 def test_combine_reports_means_over_all_items() -> None:
     g = torch.Generator().manual_seed(0)
     gt = torch.rand(3, 3, 16, 16, generator=g)

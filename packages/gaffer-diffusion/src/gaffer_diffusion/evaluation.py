@@ -136,6 +136,9 @@ class EvaluationConfig:
         compat: gaffer-envmap lighting encoding; "neural-gaffer" matches the released checkpoint.
         predictions_dir: also write every prediction as `DIR/{name}.png`; None: keep nothing.
         progress: show a tqdm progress bar on stderr.
+        baselines: also score the unrelit input against each target (its "aligned" rows are the
+            second baseline, the input channel-aligned to the target); a relighting model is only
+            useful where it beats both.
 
     Raises:
         ConfigError: on a non-positive `batch_size` or an unknown `compat`.
@@ -147,6 +150,7 @@ class EvaluationConfig:
     compat: CompatMode = "neural-gaffer"
     predictions_dir: Path | None = None
     progress: bool = False
+    baselines: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.batch_size, int) or self.batch_size < 1:
@@ -166,11 +170,14 @@ class DatasetEvaluation:
         report: per-pair and mean metrics (raw, aligned over the image, aligned over the mask).
         settings: dataset, checkpoint, sampling, seed, dtype, device, ... as plain JSON values.
         seconds: wall time of sampling and scoring.
+        baseline: the same metrics for the unrelit input image (raw: the identity baseline; aligned:
+            the input channel-aligned to the target); None when `EvaluationConfig.baselines` is off.
     """
 
     report: MetricsReport
     settings: dict[str, Any]
     seconds: float
+    baseline: MetricsReport | None = None
 
     def to_json(self) -> str:
         """Settings, timing and the full report as one JSON document."""
@@ -179,15 +186,24 @@ class DatasetEvaluation:
                 "settings": self.settings,
                 "seconds": round(self.seconds, 3),
                 "metrics": json.loads(self.report.to_json()),
+                "baseline_unrelit_input": None
+                if self.baseline is None
+                else json.loads(self.baseline.to_json()),
             },
             indent=2,
         )
 
     def to_markdown(self) -> str:
-        """The settings as a list, then the table of means."""
+        """The settings as a list, then the table of means (and the baseline's, when scored)."""
         lines = ["| setting | value |", "|---|---|"]
         lines += [f"| {k} | {v} |" for k, v in self.settings.items()]
-        return "\n".join(lines) + "\n\n" + self.report.to_markdown()
+        text = "\n".join(lines) + "\n\nRelit by the model:\n\n" + self.report.to_markdown()
+        if self.baseline is not None:
+            text += (
+                "\n\nBaseline, the unrelit input (its aligned rows: the input channel-aligned to "
+                "the target):\n\n" + self.baseline.to_markdown()
+            )
+        return text
 
 
 def _require_gaffer_data() -> Any:
@@ -540,6 +556,7 @@ def evaluate_dataset(
         bar = tqdm(total=len(pairs), desc="evaluate", unit="pair")
     start = time.perf_counter()
     reports: list[MetricsReport] = []
+    baselines: list[MetricsReport] = []
     done = 0
     try:
         for batch in _batches(pairs, config.batch_size):
@@ -563,8 +580,19 @@ def evaluate_dataset(
                 names=[p.name for p in batch],
                 perceptual=perceptual,
             )
+            if config.baselines:
+                baselines.append(
+                    evaluate_images(
+                        _to_chw(inputs),
+                        _to_chw(list(targets)),
+                        mask=_to_chw(masks),
+                        names=[p.name for p in batch],
+                        perceptual=perceptual,
+                    )
+                )
             if reason is not None:
                 report = _with_reason(report, reason)
+                baselines[-1:] = [_with_reason(b, reason) for b in baselines[-1:]]
             reports.append(report)
             done += len(batch)
             if bar is not None:
@@ -595,7 +623,12 @@ def evaluate_dataset(
         "prediction": "8-bit quantised, full image on white (authors' protocol)",
         "alignment": "pred_c * mean(gt_c) / mean(pred_c); 'whole image' and 'mask' means",
     }
-    return DatasetEvaluation(report=combine_reports(reports), settings=info, seconds=seconds)
+    return DatasetEvaluation(
+        report=combine_reports(reports),
+        settings=info,
+        seconds=seconds,
+        baseline=combine_reports(baselines) if baselines else None,
+    )
 
 
 def _with_reason(report: MetricsReport, reason: str) -> MetricsReport:

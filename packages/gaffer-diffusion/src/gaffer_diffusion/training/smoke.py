@@ -1,4 +1,4 @@
-"""CPU smoke training: render a tiny dataset, train the `tiny` config, report the numbers honestly.
+"""CPU smoke training: render a tiny dataset, train a small config, report the numbers honestly.
 
     python -m gaffer_diffusion.training.smoke --out DIR [--minutes 3] [--threads 1]
 
@@ -7,13 +7,15 @@ Stages (each reused when its output already exists in DIR):
 1. `DIR/data/recipe`, `DIR/data/render`: gaffer-data's embedded recipe (bundled CC0 HDRIs, pymeshlab's
    sample meshes, procedural Blender objects) rendered at 64 px with few samples, through the
    `gaffer-data` command line in subprocesses (bpy stays out of this process).
-2. `DIR/init`: the `tiny` preset with its random VAE first fitted as a plain autoencoder on the training
-   renders for `--vae-seconds` (a random decoder cannot draw images, so without this the diffusion loss
-   can fall while every relit image stays noise). The paper starts from pretrained Zero-1-to-3 XL instead.
-3. `DIR/train`: `configs/tiny-smoke.json` trained for `--minutes` of wall time.
+2. `DIR/init`: the config's preset, random-initialised. The default (`configs/tiny-smoke.json`) is the
+   `gaffer-tiny` architecture, which works in pixel space: nothing to pretrain. A latent preset
+   (`tiny`) first has its random VAE fitted as a plain autoencoder for `--vae-seconds` (a random decoder
+   cannot draw images, so the diffusion loss would fall while every relit image stays noise); the paper
+   starts from pretrained Zero-1-to-3 XL instead.
+3. `DIR/train`: the config trained for `--minutes` of wall time.
 4. `DIR/smoke_report.json`: the loss at the start and the end of training, and on held-out objects the
    PSNR of the relit images, of the unrelit input (the identity baseline) and of the VAE reconstruction
-   of the ground truth (the ceiling the tiny VAE allows), all against the ground-truth renders.
+   of the ground truth (the ceiling the VAE allows; exact in pixel space), against ground-truth renders.
 """
 
 import argparse
@@ -111,11 +113,13 @@ def fit_autoencoder(
 
 
 @torch.no_grad()
-def vae_ceiling(model: NeuralGafferModel, images: torch.Tensor) -> float:
-    """Mean PSNR of `decode(mode(encode(x)))` against x: the best the tiny VAE can draw."""
+def vae_ceiling(model: NeuralGafferModel, images: torch.Tensor) -> float | None:
+    """Mean PSNR of `decode(mode(encode(x)))` against x: the best the VAE can draw (None: exact, as in
+    pixel space, where the PSNR is infinite)."""
     z = model.vae.encode(images * 2 - 1).latent_dist.mode()
     rec = (model.vae.decode(z).sample / 2 + 0.5).clamp(0, 1)
-    return float(psnr(torch.round(rec * 255) / 255, images).mean())
+    value = float(psnr(torch.round(rec * 255) / 255, images).mean())
+    return value if np.isfinite(value) else None
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -141,17 +145,19 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     from gaffer_data import open_dataset
 
     train_ids, val_ids = split_object_ids(open_dataset(render).object_ids, cfg.data.val_objects)
-    res = get_preset("tiny").resolution
+    preset = get_preset(cfg.model.preset)
+    res = preset.resolution
     train_ds = RelightTrainDataset([render], cfg.data, res, seed=0, include=train_ids)
 
     init = out / "init"
     vae_stats: dict[str, float] = {}
     if not (init / "gaffer_model.json").is_file():
-        model = get_preset("tiny").setup(seed=cfg.model.seed)
-        imgs = torch.stack(
-            [t for k in range(min(len(train_ds) * 4, 256)) for t in train_ds[k].target_images]
-        )
-        vae_stats = fit_autoencoder(model, imgs, args.vae_seconds)
+        model = preset.setup(seed=cfg.model.seed)
+        if preset.vae.kind != "pixel":
+            imgs = torch.stack(
+                [t for k in range(min(len(train_ds) * 4, 256)) for t in train_ds[k].target_images]
+            )
+            vae_stats = fit_autoencoder(model, imgs, args.vae_seconds)
         save_pretrained(model, init)
     cfg = dataclasses.replace(
         cfg, model=dataclasses.replace(cfg.model, init="pretrained", path=init)
@@ -204,6 +210,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "train_views": len(train_ds),
             "val_pairs": valset.size,
             "resolution": res,
+        },
+        "model": {
+            "preset": preset.name,
+            "space": "pixel" if preset.vae.kind == "pixel" else "latent",
+            "prediction_type": preset.scheduler.prediction_type,
         },
         "vae_pretraining": vae_stats,
         "training": {
