@@ -18,9 +18,14 @@ Two parts, each writing JSON + PNG (see `_common.write_results`):
    against the 50-step DDIM output of the same seed and conditions (PSNR, and the perceptual distance:
    ST-LPIPS unless a standard LPIPS backbone is given), with the TINY model on CPU. The tiny model is
    random-init, so this measures how fast each sampler converges to the 50-step DDIM solution of the
-   same network, not relighting quality (no trained tiny model exists yet).
+   same network, not relighting quality.
+3. `diffusion_quality`: the same samplers and steps with the TRAINED, shipped `gaffer-tiny` on its
+   held-out example object (`gaffer_diffusion/data/example`: 4 views x 16 lightings of an object and
+   HDRIs it never saw), scored against the ground-truth Cycles renders (PSNR raw and channel-aligned),
+   beside the two baselines (the unrelit input; the input channel-aligned to the target): relighting
+   quality against milliseconds per image.
 
-Run: `python benchmarks/bench_diffusion.py [--quick] [--update-baseline] [--part speed|steps|all]`.
+Run: `python benchmarks/bench_diffusion.py [--quick] [--update-baseline] [--part speed|steps|quality|all]`.
 `--quick` keeps the CPU run to about 3 minutes on 2 cores.
 """
 
@@ -37,6 +42,7 @@ import torch
 
 NAME_SPEED = "diffusion_speed"
 NAME_STEPS = "diffusion_steps"
+NAME_QUALITY = "diffusion_quality"
 TARGET_SPEEDUP = 5.0  # issue 4: ours >= 5x the authors' images/s at the same steps (H100/H200)
 TARGET_MS_PER_IMAGE = 50.0  # issue 4: < 50 ms per image at 50 steps with CFG, large batch
 
@@ -47,7 +53,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--update-baseline", action="store_true", help="also write results/<name>.*")
     p.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0 = all)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--part", choices=("all", "speed", "steps"), default="all")
+    p.add_argument("--part", choices=("all", "speed", "steps", "quality"), default="all")
     p.add_argument("--lpips-backbone", help="torchvision AlexNet weights: standard LPIPS in part 2")
     return p.parse_args(argv)
 
@@ -427,6 +433,117 @@ def steps_figure(rows: list[dict[str, Any]], pname: str, meta: dict[str, Any]) -
     return fig
 
 
+def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
+    from gaffer_diffusion import RelightPipeline, RuntimeConfig, SamplingConfig
+    from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
+    from gaffer_diffusion.pretrained import (
+        GAFFER_TINY_GUIDANCE,
+        example_dataset_path,
+        load_gaffer_tiny,
+    )
+
+    schedulers = ("ddim", "dpmsolver++", "unipc")
+    steps = (2, 5, 10, 20, 50) if args.quick else (1, 2, 5, 10, 20, 35, 50)
+    threads_before = torch.get_num_threads()
+    torch.set_num_threads(1)  # as in part 2: the 64 px model gains nothing from a second thread
+    pipe = RelightPipeline(load_gaffer_tiny().model, RuntimeConfig(device="cpu", dtype="float32"))
+    pairs = dataset_pairs(example_dataset_path())
+    common.log(f"{NAME_QUALITY}: gaffer-tiny, {len(pairs)} held-out pairs, {schedulers} x {steps}")
+    rows, baseline = [], None
+    for sched in schedulers:
+        for n in steps:
+            cfg = EvaluationConfig(
+                sampling=SamplingConfig(
+                    num_inference_steps=n, scheduler=sched, guidance_scale=GAFFER_TINY_GUIDANCE
+                ),
+                batch_size=16,
+                baselines=baseline is None,
+            )
+            result = evaluate_dataset(pipe, pairs, cfg, perceptual=None)
+            if baseline is None:
+                baseline = result.baseline
+            r = result.report
+            rows.append(
+                {
+                    "scheduler": sched,
+                    "steps": n,
+                    # sampling + reading + scoring, per pair; one run (the sweep is the repetition)
+                    "s_per_image": round(result.seconds / len(pairs), 5),
+                    "psnr": round(r.mean_raw.psnr, 3),
+                    "psnr_aligned": round(r.mean_aligned_image.psnr, 3),
+                    "ssim": round(r.mean_raw.ssim, 4),
+                }
+            )
+            common.log(
+                f"  {sched:<12} {n:>3} steps: {rows[-1]['s_per_image'] * 1000:.1f} ms/img, "
+                f"PSNR {rows[-1]['psnr']} (aligned {rows[-1]['psnr_aligned']})"
+            )
+    torch.set_num_threads(threads_before)
+    assert baseline is not None
+    base = {
+        "unrelit_input_psnr": round(baseline.mean_raw.psnr, 3),
+        "unrelit_input_ssim": round(baseline.mean_raw.ssim, 4),
+        "input_aligned_to_target_psnr": round(baseline.mean_aligned_image.psnr, 3),
+    }
+    payload = {
+        "benchmark": NAME_QUALITY,
+        "quick": args.quick,
+        "config": {
+            "model": "gaffer-tiny (shipped weights, pixel space, 64x64)",
+            "data": "gaffer_diffusion/data/example: held-out object, held-out HDRIs, lighting 0 as input",
+            "pairs": len(pairs),
+            "guidance_scale": GAFFER_TINY_GUIDANCE,
+            "seed": 0,
+            "torch_threads": 1,
+            "timing": "one evaluate_dataset call per row: sampling + PNG reading + scoring, per pair",
+        },
+        "baselines": base,
+        "machine": meta,
+        "rows": rows,
+    }
+    fig = quality_figure(rows, base, {**meta, "torch_threads": 1})
+    return [str(p) for p in common.write_results(NAME_QUALITY, payload, fig, args.update_baseline)]
+
+
+def quality_figure(rows: list[dict[str, Any]], base: dict[str, float], meta: dict[str, Any]) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
+    colors = {"ddim": "tab:blue", "dpmsolver++": "tab:orange", "unipc": "tab:green"}
+    for ax, key, label in (
+        (axes[0], "psnr", "PSNR vs ground truth (dB)"),
+        (axes[1], "psnr_aligned", "channel-aligned PSNR (dB)"),
+    ):
+        for sched, color in colors.items():
+            rs = [r for r in rows if r["scheduler"] == sched]
+            t = [1000 * r["s_per_image"] for r in rs]
+            ax.plot(t, [r[key] for r in rs], "o-", color=color, label=f"gaffer-tiny, {sched}")
+            for r, x in zip(rs, t, strict=True):
+                ax.annotate(str(r["steps"]), (x, r[key]), fontsize=7)
+        ax.axhline(base["unrelit_input_psnr"], color="gray", ls="--", label="unrelit input")
+        ax.axhline(
+            base["input_aligned_to_target_psnr"],
+            color="black",
+            ls=":",
+            label="input channel-aligned to target",
+        )
+        ax.set_ylabel(label)
+        ax.set_xscale("log")
+        ax.set_xlabel("ms per image (CPU, 1 thread; labels = steps)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(
+        "gaffer-tiny on its held-out example (unseen object and HDRIs): quality vs sampling time\n"
+        + common.short_device(meta),
+        fontsize=9,
+    )
+    fig.tight_layout()
+    return fig
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     threads = common.set_threads(args.threads)
@@ -439,6 +556,8 @@ def main(argv: list[str] | None = None) -> int:
     written: list[str] = []
     if args.part in ("all", "steps"):
         written += run_steps(args, meta)
+    if args.part in ("all", "quality"):
+        written += run_quality(args, meta)
     if args.part in ("all", "speed"):
         written += run_speed(args, meta)
     common.log(f"done in {time.perf_counter() - t0:.0f} s; wrote {written}")

@@ -452,6 +452,7 @@ def bench_pages(out: Path) -> None:
         "data_render",
         "diffusion_speed",
         "diffusion_steps",
+        "diffusion_quality",
         "nerf",
     }
     _write(out / "bench_other.md", bench_other_charts(out, shown))
@@ -558,6 +559,35 @@ def bench_diffusion(out: Path) -> str:
         )
     else:
         text += _missing("bench_diffusion.py")
+    path = BENCH / "diffusion_quality.json"
+    if path.exists():
+        d = json.loads(path.read_text())
+        cfg, base = d["config"], d["baselines"]
+        rows = [
+            "| sampler | steps | PSNR (dB) | aligned PSNR (dB) | SSIM | ms per image |",
+            "|---|---|---|---|---|---|",
+        ]
+        for r in d["rows"]:
+            rows.append(
+                f"| {r['scheduler']} | {r['steps']} | {r['psnr']:.2f} | {r['psnr_aligned']:.2f} | "
+                f"{r['ssim']:.3f} | {1000 * r['s_per_image']:.0f} |"
+            )
+        text += (
+            "\n### gaffer-tiny: relighting quality against sampling time\n\n"
+            f"**Measured on:** {_machine_line(d['machine'])}; {cfg['model']}, {cfg['data']}, "
+            f"{cfg['pairs']} pairs, guidance {cfg['guidance_scale']:g}, against ground-truth renders. "
+            f"Baselines: the unrelit input {base['unrelit_input_psnr']:.2f} dB, the input "
+            f"channel-aligned to the target {base['input_aligned_to_target_psnr']:.2f} dB.\n\n"
+            + "\n".join(rows)
+            + "\n\n"
+            + _chart(
+                out,
+                "diffusion_quality",
+                "gaffer-tiny PSNR against milliseconds per image, per sampler and step count.",
+            )
+        )
+    else:
+        text += _missing("bench_diffusion.py --part quality")
     return text
 
 

@@ -191,3 +191,22 @@ def test_v_prediction_pipeline_runs() -> None:
             seeds=[0],
         )
         assert torch.isfinite(out.images).all()
+
+
+def test_gaffer_tiny_samples_from_t999_at_any_step_count() -> None:
+    from gaffer_diffusion import SchedulerConfig
+    from gaffer_diffusion.schedulers import make_scheduler
+
+    cfg = get_preset("gaffer-tiny").scheduler
+    assert cfg.timestep_spacing == "trailing"
+    for name in ("ddim", "dpmsolver++", "unipc"):
+        for n in (1, 5, 20):
+            s = make_scheduler(name, cfg)
+            s.set_timesteps(n)
+            assert int(s.timesteps[0]) == 999, (name, n)
+    # the paper's "leading" schedule would start a 1-step sample at t=1
+    s = make_scheduler("ddim", SchedulerConfig())
+    s.set_timesteps(1)
+    assert int(s.timesteps[0]) == 1
+    with pytest.raises(ConfigError, match=r"scheduler\.timestep_spacing"):
+        SchedulerConfig(timestep_spacing="uniform")

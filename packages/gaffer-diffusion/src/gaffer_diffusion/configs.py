@@ -15,7 +15,7 @@ Presets (`get_preset`):
   milliseconds per forward.
 - `"gaffer-tiny"`: the shipped small model we train ourselves on CPU (`gaffer_diffusion.pretrained`):
   pixel space (`VAEConfig(kind="pixel")`, 64x64 "latents" `[R, G, B, luminance]`), a ~3M-parameter UNet
-  with attention at 16x16, v-prediction, and the `"tiny"` CLIP tower.
+  with attention at 16x16, v-prediction sampled with "trailing" timesteps, and the `"tiny"` CLIP tower.
 """
 
 import dataclasses
@@ -228,6 +228,11 @@ class SchedulerConfig:
     set_alpha_to_one: bool = False
 
     def __post_init__(self) -> None:
+        if self.timestep_spacing not in ("leading", "trailing", "linspace"):
+            raise ConfigError(
+                f"`scheduler.timestep_spacing` is {self.timestep_spacing!r}; expected 'leading' "
+                "(the paper's), 'trailing' or 'linspace'."
+            )
         if self.prediction_type not in PREDICTION_TYPES:
             raise ConfigError(
                 f"`scheduler.prediction_type` is {self.prediction_type!r}; expected one of "
@@ -374,8 +379,10 @@ def _gaffer_tiny() -> ModelConfig:
         vae=VAEConfig(kind="pixel", scaling_factor=1.0, sample_size=64),
         image_encoder=tiny.image_encoder,
         # v-prediction: with epsilon in pixel space a young model's x0 = (z - sqrt(1 - abar) eps) /
-        # sqrt(abar) amplifies its noise error ~14x at the first DDIM step and samples stay noise
-        scheduler=SchedulerConfig(prediction_type="v_prediction"),
+        # sqrt(abar) amplifies its noise error ~14x at the first DDIM step and samples stay noise.
+        # "trailing" spacing: sampling starts at t=999 whatever the step count ("leading" starts a
+        # 1-step sample at t=1 and a 5-step one at t=801, on pure noise the model never saw there)
+        scheduler=SchedulerConfig(prediction_type="v_prediction", timestep_spacing="trailing"),
     )
 
 
