@@ -144,7 +144,7 @@ def smoke_train(session: nox.Session) -> None:
     )
     report = json.loads((out / "smoke_report.json").read_text())
     train, held = report["training"], report["heldout_psnr_db"]
-    relit = {k: v["psnr_relit"] for k, v in held.items() if k.startswith("guidance_")}
+    relit = {k: v["psnr_relit"] for k, v in held.items() if k.startswith("steps_")}
     session.log(
         f"loss {train['loss_first_10pct']:.4f} -> {train['loss_last_10pct']:.4f} in "
         f"{train['steps']} steps; held-out PSNR relit {relit} vs unrelit input "
