@@ -110,7 +110,12 @@ def _filter(args: argparse.Namespace) -> int:
     from gaffer_data.filter.run import filter_objects
 
     summary = filter_objects(
-        args.src, args.out, rules_path=args.rules, classifier_path=args.classifier
+        args.src,
+        args.out,
+        rules_path=args.rules,
+        classifier_path=args.classifier,
+        workers=args.workers,
+        timeout_s=args.timeout if args.timeout != 0 else None,
     )
     print(f"accepted {summary.accepted} / {summary.total} objects -> {args.out}")
     return 0
@@ -238,6 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--out", required=True, type=Path, help="output .jsonl manifest")
     f.add_argument("--rules", type=Path, default=None, help="rules JSON (see FilterRules)")
     f.add_argument("--classifier", type=Path, default=None, help="trained classifier folder")
+    f.add_argument("--workers", type=int, default=1, help="feature-extraction processes")
+    f.add_argument(
+        "--timeout",
+        type=float,
+        default=300.0,
+        help="seconds per object before it is rejected as 'timeout after N s' (0: no limit)",
+    )
     f.set_defaults(func=_filter)
 
     t = sub.add_parser(

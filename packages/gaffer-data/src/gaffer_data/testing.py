@@ -5,7 +5,11 @@ Used by gaffer-data's own tests and by sibling packages and e2e tests (importabl
 """
 
 import math
+import os
+import signal
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,6 +30,19 @@ def tiny_config(**overrides: object) -> RenderConfig:
     }
     kwargs.update(overrides)
     return RenderConfig(**kwargs)  # type: ignore[arg-type]
+
+
+def hostile_extract_features(object_id: str, path: str | Path, **options: Any) -> Any:
+    """`extract_features`, except that ids starting with "hang" sleep for an hour and ids starting
+    with "crash" SIGKILL their own process (as the OOM killer would): stand-ins for pathological files
+    in tests of the filter's worker isolation (importable, so spawned workers can run it)."""
+    if object_id.startswith("hang"):
+        time.sleep(3600.0)
+    if object_id.startswith("crash"):
+        os.kill(os.getpid(), signal.SIGKILL)
+    from gaffer_data.filter.features import extract_features
+
+    return extract_features(object_id, path, **options)
 
 
 def write_exr(path: Path, rgb: np.ndarray) -> Path:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from gaffer_data.errors import missing_extra
+from gaffer_data.filter.precheck import declared_face_count
 
 NUMERIC_FEATURES = (
     "file_size_mb",
@@ -224,6 +225,15 @@ def _topology(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
     return int(measures["connected_components_number"]), int(measures["non_two_manifold_edges"])
 
 
+def warm_up() -> None:
+    """Import the mesh libraries now (a worker does it before its first time-limited object)."""
+    for name in ("trimesh", "pymeshlab"):
+        try:
+            __import__(name)
+        except ImportError:
+            pass  # extract_features reports the missing extra per object
+
+
 def extract_features(
     object_id: str, path: str | Path, *, max_file_mb: float = 512.0, max_faces: int = 5_000_000
 ) -> ObjectFeatures:
@@ -233,7 +243,8 @@ def extract_features(
         object_id: the object's id.
         path: a mesh file trimesh can read (GLB/GLTF, OBJ, PLY, STL, OFF).
         max_file_mb: files above this are not loaded (hostile or huge): `error` says so.
-        max_faces: meshes above this skip the pymeshlab topology pass: `error` says so.
+        max_faces: files whose header declares more faces are not loaded, and loaded meshes above
+            this skip the pymeshlab topology pass: `error` says so.
 
     Returns:
         The features; `error` is set when they could not all be computed.
@@ -251,6 +262,13 @@ def extract_features(
         )
     try:
         gltf = _gltf_json(path)
+        declared = declared_face_count(path, gltf)
+        if declared is not None and declared > max_faces:
+            return ObjectFeatures(
+                **base,
+                face_count=declared,
+                error=f"header declares {declared} faces > max_faces={max_faces} (not loaded)",
+            )
         mesh, textures, material_count = _load_mesh(path)
         faces = np.asarray(mesh.faces)
         vertices = np.asarray(mesh.vertices, dtype=np.float64)

@@ -1,25 +1,26 @@
 """`gaffer-data filter`: features -> rules -> classifier score -> decision, one JSONL line per object.
 
-Feature extraction runs in a pool of spawned subprocesses, so a loader that crashes the interpreter
-(a segfault in a native mesh library) costs one object, recorded as rejected, never the run.
+Feature extraction runs in spawned worker processes (`gaffer_data.filter.isolate`), each object under
+a time limit, so a loader that hangs or crashes the interpreter (a segfault in a native mesh library)
+costs one object, recorded as rejected with its reason, never the run.
 """
 
-import concurrent.futures
 import dataclasses
 import json
-import logging
-import multiprocessing
-from concurrent.futures.process import BrokenProcessPool
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 from gaffer_data._atomic import atomic_write_text
+from gaffer_data.errors import ConfigError
 from gaffer_data.filter.classifier import QualityClassifier
-from gaffer_data.filter.features import ObjectFeatures, extract_features
+from gaffer_data.filter.features import extract_features
+from gaffer_data.filter.isolate import extract_isolated
 from gaffer_data.filter.rules import FilterRules
 from gaffer_data.recipes import scan_objects
 
-logger = logging.getLogger(__name__)
+DEFAULT_TIMEOUT_S = 300.0
+"""Seconds one object's feature extraction may take (a 2M-face GLB takes well under a minute)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -30,48 +31,6 @@ class FilterSummary:
     accepted: int
 
 
-def _run_pool(
-    pairs: list[tuple[str, Path]],
-    workers: int,
-    rules: FilterRules,
-    results: dict[str, ObjectFeatures],
-) -> list[tuple[str, Path]]:
-    """Extract features in a spawned process pool; return the objects lost to a broken pool."""
-    crashed = []
-    ctx = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futures = {
-            pool.submit(
-                extract_features,
-                oid,
-                path,
-                max_file_mb=rules.max_file_mb,
-                max_faces=rules.max_faces,
-            ): (oid, path)
-            for oid, path in pairs
-        }
-        for future in concurrent.futures.as_completed(futures):
-            try:
-                results[futures[future][0]] = future.result()
-            except BrokenProcessPool:
-                crashed.append(futures[future])
-    return crashed
-
-
-def _features_isolated(
-    pairs: list[tuple[str, Path]], workers: int, rules: FilterRules
-) -> dict[str, ObjectFeatures]:
-    results: dict[str, ObjectFeatures] = {}
-    # A crash breaks the whole pool and we cannot tell which object did it: retry each alone.
-    for oid, path in _run_pool(pairs, workers, rules, results):
-        if _run_pool([(oid, path)], 1, rules, results):
-            logger.warning("%s: feature extraction crashed the process", oid)
-            results[oid] = ObjectFeatures(
-                object_id=oid, path=str(path), error="feature extraction crashed the process"
-            )
-    return results
-
-
 def filter_objects(
     src: str | Path,
     out: str | Path,
@@ -80,6 +39,7 @@ def filter_objects(
     classifier_path: str | Path | None = None,
     threshold: float = 0.5,
     workers: int = 1,
+    timeout_s: float | None = DEFAULT_TIMEOUT_S,
 ) -> FilterSummary:
     """Filter a folder of objects and write the JSONL manifest.
 
@@ -90,14 +50,32 @@ def filter_objects(
         classifier_path: folder of a trained classifier, or None (rules only).
         threshold: minimum classifier score to accept.
         workers: feature-extraction processes.
+        timeout_s: seconds one object's features may take before it is rejected with
+            "timeout after N s" (its worker is killed and replaced); None for no limit.
 
     Returns:
         Counts of objects and accepted objects.
+
+    Raises:
+        ConfigError: `workers` < 1 or `timeout_s` not a positive number.
     """
+    if not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"`workers`={workers!r} must be an integer >= 1 (`--workers`).")
+    if timeout_s is not None and not (isinstance(timeout_s, int | float) and timeout_s > 0):
+        raise ConfigError(
+            f"`timeout_s`={timeout_s!r} must be a number of seconds > 0 (`--timeout`), "
+            "or None for no limit."
+        )
+    if timeout_s is not None and not math.isfinite(timeout_s):
+        timeout_s = None
     rules = FilterRules.from_json(rules_path) if rules_path is not None else FilterRules()
     classifier = QualityClassifier.load(classifier_path) if classifier_path is not None else None
     pairs = scan_objects(src)
-    features = _features_isolated(pairs, workers, rules)
+    options = {"max_file_mb": rules.max_file_mb, "max_faces": rules.max_faces}
+    # Looked up at call time so tests can stand in a hostile extractor (it must be importable).
+    features = extract_isolated(
+        pairs, extract_features, workers=workers, timeout_s=timeout_s, options=options
+    )
     lines, accepted = [], 0
     for oid, path in pairs:
         feats = features[oid]
