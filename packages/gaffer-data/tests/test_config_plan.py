@@ -4,12 +4,19 @@ import numpy as np
 import pytest
 
 import gaffer_data
-from gaffer_data.config import AugmentConfig, CameraConfig, RenderConfig
+from gaffer_data.config import (
+    AugmentConfig,
+    CameraConfig,
+    MultiviewConfig,
+    RenderConfig,
+    multiview_render_config,
+)
 from gaffer_data.dataset.schema import EnvmapRef
 from gaffer_data.errors import ConfigError, InputError
 from gaffer_data.render.plan import (
     PoolEntry,
     look_at_c2w_blender,
+    plan_for,
     plan_object,
     plan_poses,
     scan_envmaps,
@@ -144,6 +151,44 @@ def test_look_at_straight_down_is_defined() -> None:
     c2w = look_at_c2w_blender((0.0, 0.0, 2.0))
     assert np.all(np.isfinite(c2w))
     np.testing.assert_allclose(c2w[:3, :3] @ c2w[:3, :3].T, np.eye(3), atol=1e-12)
+
+
+def _previous_look_at_c2w_blender(position, target=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The formula gaffer-data used before delegating to gaffer-envmap (kept to prove bit-identity)."""
+    pos = np.asarray(position, dtype=np.float64)
+    forward = np.asarray(target, dtype=np.float64) - pos
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-9:
+        right = np.cross(forward, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, pos
+    return c2w
+
+
+def test_look_at_delegates_to_gaffer_envmap_bit_identically() -> None:
+    rng = np.random.default_rng(1234)
+    positions = [tuple(p) for p in rng.normal(size=(500, 3)) * rng.uniform(0.1, 5.0, (500, 1))]
+    positions += [(0.0, 0.0, 2.0), (0.0, 0.0, -1.7), (1e-12, 0.0, 3.0)]  # straight down / up
+    targets = [(0.0, 0.0, 0.0)] * len(positions)
+    targets[:100] = [tuple(t) for t in rng.normal(size=(100, 3))]
+    for position, target in zip(positions, targets, strict=True):
+        ours = look_at_c2w_blender(position, target)
+        np.testing.assert_array_equal(ours, _previous_look_at_c2w_blender(position, target))
+    # And the planned cameras of real plans (relighting and multi-view), through cameras.npz's payload.
+    multiview = [
+        multiview_render_config(MultiviewConfig(train_views=8, test_views=4, **kw), resolution=32)
+        for kw in ({}, {"layout": "orbit", "orbit_elevation_deg": 90.0})
+    ]
+    for config in (RenderConfig(views=50), tiny_config(views=7), *multiview):
+        plan = plan_for("obj", "/x/o.glb", _pool(), config)
+        old = np.stack([_previous_look_at_c2w_blender(v.camera.position) for v in plan.views])
+        new = np.stack([look_at_c2w_blender(v.camera.position) for v in plan.views])
+        np.testing.assert_array_equal(new, old)
+        poses = plan_poses(plan)
+        np.testing.assert_array_equal(poses.w2c_blender, np.linalg.inv(old)[:, :3, :])
 
 
 @pytest.mark.parametrize("flip", [False, True])

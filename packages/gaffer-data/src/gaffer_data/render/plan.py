@@ -27,6 +27,7 @@ from gaffer_data.dataset.schema import (
     ViewRecord,
 )
 from gaffer_data.errors import ConfigError, InputError
+from gaffer_envmap.poses import look_at_w2c_blender
 
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 # Blender camera axes (x right, y up, looking down -z) -> OpenCV axes (x right, y down, looking down +z).
@@ -58,19 +59,19 @@ def look_at_c2w_blender(
 ) -> np.ndarray:
     """`[4, 4]` camera-to-world of a Blender camera at `position` looking at `target` with +z up.
 
-    Blender cameras look down their local -z with local +y up, as a Track To constraint (-Z, up Y) sets
-    them. Straight above or below the target the up vector is undefined; +y is used there instead.
+    The rotation is gaffer-envmap's `look_at_w2c_blender` (Blender cameras look down their local -z
+    with local +y up, as a Track To constraint (-Z, up Y) sets them; straight above or below the target
+    +y is used as up), transposed; the translation is `position` itself, not `-R^T t`, so the matrix is
+    bit-identical to the formula this package used before.
+
+    Raises:
+        gaffer_envmap.PoseError: `position` equals `target`.
     """
     pos = np.asarray(position, dtype=np.float64)
-    forward = np.asarray(target, dtype=np.float64) - pos
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    if np.linalg.norm(right) < 1e-9:
-        right = np.cross(forward, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
+    tx, ty, tz = (float(c) for c in target)
+    w2c = look_at_w2c_blender(pos, target=(tx, ty, tz))
     c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, pos
+    c2w[:3, :3], c2w[:3, 3] = w2c.rotation.T, pos
     return c2w
 
 
