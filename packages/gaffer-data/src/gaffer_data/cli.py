@@ -1,5 +1,5 @@
 """The `gaffer-data` command line: `render`, `render-multiview`, `recipe`, `filter`, `train-classifier`,
-`convert-authors`, `info`."""
+`convert-authors`, `schema`, `info`."""
 
 import argparse
 import dataclasses
@@ -153,6 +153,14 @@ def _convert_authors(args: argparse.Namespace) -> int:
     return 0 if not summary.failed else 1
 
 
+def _schema(args: argparse.Namespace) -> int:
+    from gaffer_data.dataset.json_schema import write_schemas
+
+    for path in write_schemas(args.out):
+        print(path)
+    return 0
+
+
 def _info(args: argparse.Namespace) -> int:
     from gaffer_data.dataset import open_dataset
 
@@ -275,6 +283,12 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--object-list", type=Path, default=None, help="JSON list of object ids")
     a.add_argument("--hardlink", action="store_true", help="hard-link instead of copying")
     a.set_defaults(func=_convert_authors)
+
+    s = sub.add_parser(
+        "schema", help="write JSON Schemas of manifest.json and dataset.json (draft 2020-12)"
+    )
+    s.add_argument("--out", required=True, type=Path, help="folder for the *.schema.json files")
+    s.set_defaults(func=_schema)
 
     i = sub.add_parser("info", help="summarise (and optionally verify) a rendered dataset")
     i.add_argument("root", type=Path)
