@@ -1,4 +1,5 @@
-"""Training of the Neural Gaffer UNet on gaffer-data renders (extra `gaffer-diffusion[train]`).
+"""Training of the Neural Gaffer UNet on gaffer-data renders and converted authors' splits (extra
+`gaffer-diffusion[train]`).
 
 The only part of gaffer-diffusion that imports gaffer-data. Entry points: `load_config` + `train`, or the
 command line `gaffer-diffusion train --config CONFIG [--resume]`.
@@ -20,7 +21,10 @@ from gaffer_diffusion.training.dataset import (
     RelightTrainDataset,
     TrainBatch,
     TrainItem,
+    batch_lighting,
+    check_lighting_compat,
     collate_items,
+    dataset_object_ids,
     encode_batch_lighting,
     split_object_ids,
 )
@@ -54,9 +58,12 @@ __all__ = [
     "TrainingDivergedError",
     "ValidationConfig",
     "ValidationResult",
+    "batch_lighting",
     "build_training_model",
     "cfg_dropout_masks",
+    "check_lighting_compat",
     "collate_items",
+    "dataset_object_ids",
     "encode_batch_lighting",
     "load_checkpoint_model",
     "load_config",

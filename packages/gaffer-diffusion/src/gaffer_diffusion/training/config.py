@@ -87,8 +87,13 @@ class DataConfig:
     """The rendered dataset(s) and how samples are drawn from them.
 
     Attributes:
-        root: a `gaffer-data render` output folder.
-        val_root: a separate held-out render folder; None holds out `val_objects` objects of `root`.
+        root: a `gaffer-data render` output folder, or a split of the authors' release converted by
+            `gaffer-data convert-authors` (its pre-encoded lighting maps are used as they are).
+        extra_roots: more training folders of either kind, sampled together with `root` (one item per
+            object view over all of them). Renders mixed with authors' splits (here or in `val_root`)
+            need `lighting_compat="neural-gaffer"`, the authors' encoding.
+        val_root: a separate held-out folder (either kind); None holds out `val_objects` objects of
+            `root` (and leaves objects with the same ids out of `extra_roots`).
         val_objects: objects of `root` held out for validation when `val_root` is None.
         envmap_dirs: folders searched (by file name) for environment maps whose recorded source path no
             longer exists (datasets moved between machines).
@@ -106,6 +111,7 @@ class DataConfig:
     """
 
     root: Path
+    extra_roots: tuple[Path, ...] = ()
     val_root: Path | None = None
     val_objects: int = 1
     envmap_dirs: tuple[Path, ...] = ()

@@ -11,6 +11,13 @@ with no PNG round trip.
 Images are the renders' 8-bit sRGB PNGs (straight alpha), composited on white and resized (bilinear,
 antialiased) to the model resolution, as the authors preprocess them.
 
+Converted authors' splits (`gaffer-data convert-authors`, schema "gaffer.authors_dataset") are read too,
+mixed freely with renders: their images are sampled the same way, but their lighting comes as the
+authors' pre-encoded camera-frame LDR/HDR PNGs, which are used as they are (read and resized to the
+model resolution with `gaffer_diffusion.evaluation`'s reader, PIL bilinear; no environment map, no
+re-encoding). Such items carry `encoded_ldr` / `encoded_hdr` instead of `envmaps`; `batch_lighting`
+fills a batch's lighting from both kinds.
+
 Determinism: an item depends only on `(seed, key)`; `KeySampler` yields keys
 `epoch * len(dataset) + index` from a seeded permutation per epoch and can start at any position, so a
 resumed run sees exactly the samples an uninterrupted run would have seen.
@@ -20,13 +27,14 @@ whose files are missing or corrupt is replaced by another one (drawn from the sa
 and every such event is counted in the batch (`TrainBatch.skipped`) and logged by the training loop.
 """
 
+import dataclasses
 import hashlib
 import logging
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -35,8 +43,15 @@ from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
-from gaffer_data import GafferDataError, open_dataset, read_object
-from gaffer_data.dataset import EnvmapRef, RenderedObject, ViewRecord
+from gaffer_data import GafferDataError, open_authors_dataset, open_dataset, read_object
+from gaffer_data.dataset import (
+    AuthorsObject,
+    AuthorsView,
+    EnvmapRef,
+    RenderedObject,
+    ViewRecord,
+    read_authors_object,
+)
 from gaffer_diffusion.training.config import DataConfig, LightingCompat
 from gaffer_diffusion.training.errors import DataError
 
@@ -49,50 +64,99 @@ _ENVMAP_SUFFIXES = (".exr", ".hdr")
 class TrainItem:
     """One training sample (channels-first images in [0, 1], sRGB, on white).
 
+    The target lighting is given one of two ways: `envmaps` (a gaffer-data render; encoded later, batched,
+    on the training device) or `encoded_ldr` + `encoded_hdr` (a converted authors' split: their
+    camera-frame maps, used as they are). Exactly one of the two is set.
+
     Attributes:
         input_image: `[3, H, W]` the input view.
         target_images: `[T, 3, H, W]` the same view under the T target lightings.
-        envmaps: `[T, He, We, 3]` linear radiance of the target lightings (Blender world frame).
+        envmaps: `[T, He, We, 3]` linear radiance of the target lightings (Blender world frame), or None
+            for an item with pre-encoded lighting.
         w2c_blender: `[3, 4]` world-to-camera matrix of the view (Blender camera axes).
         input_is_area: the input is the area-light render.
         object_id: the object.
         view_index: the view.
         skipped: unreadable items replaced before this one was found.
         skipped_files: the files that failed (one per replaced item).
+        encoded_ldr: `[T, 3, H, W]` the authors' camera-frame LDR maps of the targets in [0, 1], at the
+            image resolution, or None (the item has `envmaps`).
+        encoded_hdr: `[T, 3, H, W]` the matching HDR maps, or None.
+
+    Raises:
+        DataError: both or neither lighting forms are given, or their shapes disagree.
     """
 
     input_image: Float[Tensor, "3 H W"]
     target_images: Float[Tensor, "T 3 H W"]
-    envmaps: Float[Tensor, "T He We 3"]
+    envmaps: Float[Tensor, "T He We 3"] | None
     w2c_blender: Float[Tensor, "3 4"]
     input_is_area: bool
     object_id: str
     view_index: int
     skipped: int = 0
     skipped_files: tuple[str, ...] = ()
+    encoded_ldr: Float[Tensor, "T 3 H W"] | None = None
+    encoded_hdr: Float[Tensor, "T 3 H W"] | None = None
+
+    def __post_init__(self) -> None:
+        encoded = (self.encoded_ldr is not None, self.encoded_hdr is not None)
+        if encoded[0] != encoded[1] or (self.envmaps is None) != encoded[0]:
+            raise DataError(
+                f"`TrainItem` of {self.object_id!r} view {self.view_index}: give either `envmaps` or "
+                "both `encoded_ldr` and `encoded_hdr`, not a mix."
+            )
+        t = self.target_images.shape[0]
+        if self.envmaps is not None and self.envmaps.shape[0] != t:
+            raise DataError(
+                f"`TrainItem.envmaps` has {self.envmaps.shape[0]} maps for {t} target images."
+            )
+        for name in ("encoded_ldr", "encoded_hdr"):
+            m = getattr(self, name)
+            if m is not None and tuple(m.shape) != tuple(self.target_images.shape):
+                raise DataError(
+                    f"`TrainItem.{name}` has shape {tuple(m.shape)}; expected the target images' "
+                    f"{tuple(self.target_images.shape)} (resize the maps to the image resolution)."
+                )
+
+    @property
+    def lighting_encoded(self) -> bool:
+        """The lighting is pre-encoded (`encoded_ldr` / `encoded_hdr`), not `envmaps`."""
+        return self.envmaps is None
 
 
 @dataclass(frozen=True, kw_only=True)
 class TrainBatch:
     """A collated batch of `TrainItem`s.
 
+    Items of a render carry environment maps, items of a converted authors' split pre-encoded maps;
+    `lighting_encoded` says which item is which, and `envmaps` / `encoded_*` hold only the rows of their
+    kind, in batch order (`batch_lighting` puts them back together). Without authors' items `envmaps`
+    holds all B items and `encoded_*` are empty.
+
     Attributes:
         input_images: `[B, 3, H, W]`.
         target_images: `[B, T, 3, H, W]`.
-        envmaps: `[B, T, He, We, 3]` linear radiance.
+        envmaps: `[Be, T, He, We, 3]` linear radiance of the Be items with `lighting_encoded` False.
         w2c_blender: `[B, 3, 4]`.
         input_is_area: `[B]` bool.
         skipped: unreadable items replaced while loading this batch.
         skipped_files: their files.
+        lighting_encoded: `[B]` bool, True for items with pre-encoded lighting (None: all False).
+        encoded_ldr: `[Ba, T, 3, H, W]` the pre-encoded LDR maps of the Ba other items (None: Ba = 0).
+        encoded_hdr: `[Ba, T, 3, H, W]` their HDR maps (None: Ba = 0).
     """
 
     input_images: Float[Tensor, "B 3 H W"]
     target_images: Float[Tensor, "B T 3 H W"]
-    envmaps: Float[Tensor, "B T He We 3"]
+    envmaps: Float[Tensor, "Be T He We 3"]
     w2c_blender: Float[Tensor, "B 3 4"]
     input_is_area: Tensor
     skipped: int = 0
     skipped_files: tuple[str, ...] = ()
+    lighting_encoded: Tensor | None = None
+    encoded_ldr: Float[Tensor, "Ba T 3 H W"] | None = None
+    encoded_hdr: Float[Tensor, "Ba T 3 H W"] | None = None
 
     @property
     def batch_size(self) -> int:
@@ -114,20 +178,40 @@ class TrainBatch:
             input_is_area=self.input_is_area,
             skipped=self.skipped,
             skipped_files=self.skipped_files,
+            lighting_encoded=self.lighting_encoded,
+            encoded_ldr=None if self.encoded_ldr is None else self.encoded_ldr.pin_memory(),
+            encoded_hdr=None if self.encoded_hdr is None else self.encoded_hdr.pin_memory(),
         )
 
 
 def collate_items(items: Sequence[TrainItem]) -> TrainBatch:
-    """Stack `TrainItem`s into a `TrainBatch` (the DataLoader's `collate_fn`)."""
-    return TrainBatch(
-        input_images=torch.stack([i.input_image for i in items]),
-        target_images=torch.stack([i.target_images for i in items]),
-        envmaps=torch.stack([i.envmaps for i in items]),
-        w2c_blender=torch.stack([i.w2c_blender for i in items]),
-        input_is_area=torch.tensor([i.input_is_area for i in items]),
-        skipped=sum(i.skipped for i in items),
-        skipped_files=tuple(f for i in items for f in i.skipped_files),
-    )
+    """Stack `TrainItem`s into a `TrainBatch` (the DataLoader's `collate_fn`).
+
+    Raises:
+        DataError: the items disagree on the number of targets or the image / map sizes.
+    """
+    env = [i.envmaps for i in items if i.envmaps is not None]
+    ldr = [i.encoded_ldr for i in items if i.encoded_ldr is not None]
+    hdr = [i.encoded_hdr for i in items if i.encoded_hdr is not None]
+    t = items[0].target_images.shape[0] if items else 0
+    try:
+        return TrainBatch(
+            input_images=torch.stack([i.input_image for i in items]),
+            target_images=torch.stack([i.target_images for i in items]),
+            envmaps=torch.stack(env) if env else torch.zeros(0, t, 0, 0, 3),
+            w2c_blender=torch.stack([i.w2c_blender for i in items]),
+            input_is_area=torch.tensor([i.input_is_area for i in items]),
+            skipped=sum(i.skipped for i in items),
+            skipped_files=tuple(f for i in items for f in i.skipped_files),
+            lighting_encoded=torch.tensor([i.lighting_encoded for i in items]) if ldr else None,
+            encoded_ldr=torch.stack(ldr) if ldr else None,
+            encoded_hdr=torch.stack(hdr) if hdr else None,
+        )
+    except RuntimeError as exc:  # torch.stack on mismatched shapes
+        raise DataError(
+            f"cannot batch these items: {exc}. Every dataset of a run must be read at the same "
+            "`resolution`, `data.targets_per_sample` and `data.envmap_height`."
+        ) from exc
 
 
 def split_object_ids(
@@ -251,26 +335,83 @@ class _EnvmapCache:
         return rad
 
 
+DatasetKind = Literal["render", "authors"]
+"""A gaffer-data render folder or a converted authors' split (`gaffer_diffusion.evaluation`'s kinds)."""
+
+
+def dataset_kind(root: str | Path) -> DatasetKind:
+    """ "authors" for a folder written by `gaffer-data convert-authors`, else "render".
+
+    The same test as evaluation's (`gaffer_diffusion.evaluation.dataset_kind`): the schema in
+    `root/dataset.json`.
+    """
+    from gaffer_diffusion.evaluation import dataset_kind as _kind
+
+    return _kind(root)
+
+
+def dataset_object_ids(root: str | Path) -> tuple[str, ...]:
+    """The complete objects of a render folder or of a converted authors' split, sorted.
+
+    Raises:
+        DataError: `root` is not a dataset folder (naming the argument and the fix).
+    """
+    try:
+        if dataset_kind(root) == "authors":
+            return tuple(open_authors_dataset(root).object_ids)
+        return tuple(open_dataset(root).object_ids)
+    except (GafferDataError, OSError, ValueError) as exc:
+        raise DataError(
+            f"`data.root` / `data.val_root` {str(root)!r} is not a readable dataset ({exc}). Pass a "
+            "`gaffer-data render` output folder or the `--out` folder of `gaffer-data "
+            "convert-authors`."
+        ) from exc
+
+
+def check_lighting_compat(roots: Sequence[str | Path], compat: LightingCompat) -> None:
+    """Refuse a run that would mix the authors' encoded maps with another lighting encoding.
+
+    The authors' maps (converted splits) are the "neural-gaffer" encoding; environment maps of render
+    folders are encoded with `compat`. Both in one run (training or validation) need
+    `compat == "neural-gaffer"`, or the model sees two different conditionings for the same light.
+
+    Raises:
+        DataError: renders and authors' splits together with `compat="default"`.
+    """
+    kinds = {str(r): dataset_kind(r) for r in roots}
+    authors = [r for r, k in kinds.items() if k == "authors"]
+    renders = [r for r, k in kinds.items() if k == "render"]
+    if authors and renders and compat != "neural-gaffer":
+        raise DataError(
+            f"The converted authors' split(s) {authors} come with the authors' 'neural-gaffer' "
+            f"lighting encoding, but the render folder(s) {renders} would be encoded with "
+            f"`data.lighting_compat` = {compat!r}. Set `data.lighting_compat` to 'neural-gaffer' to "
+            "mix them, or train and validate on one kind of dataset."
+        )
+
+
 @dataclass(frozen=True, kw_only=True)
 class _ViewEntry:
     object_index: int
-    view: ViewRecord
+    view: ViewRecord | AuthorsView
     w2c_blender: np.ndarray
 
 
 class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
-    """Samples of one or more rendered datasets, indexed by (object, view).
+    """Samples of one or more datasets, indexed by (object, view).
 
     Args:
-        roots: `gaffer-data render` output folders.
+        roots: `gaffer-data render` output folders and/or converted authors' splits (`gaffer-data
+            convert-authors --out`), in any mix; each folder's kind is read from its `dataset.json`.
         config: sampling settings (`targets_per_sample`, `area_light_prob`, envmap size, ...).
-        resolution: model image size.
+        resolution: model image size (images and the authors' encoded maps are resized to it).
         seed: item seed; item `key` is drawn from `np.random.default_rng([seed, key])`.
         include: only these object ids (None: all).
         exclude: never these object ids.
 
     Raises:
-        DataError: no usable view in the given folders.
+        DataError: a folder is not a dataset, no usable view in the given folders, or renders mixed
+            with authors' splits under `data.lighting_compat="default"`.
 
     Example:
         >>> ds = RelightTrainDataset(["renders/"], DataConfig(root=Path("renders/")), 64)  # doctest: +SKIP
@@ -289,22 +430,34 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         include: Sequence[str] | None = None,
         exclude: Sequence[str] = (),
     ) -> None:
+        if isinstance(roots, str | Path):
+            raise DataError(
+                f"`roots` is the single path {str(roots)!r}; pass a list of dataset folders "
+                f"([{str(roots)!r}])."
+            )
         self.config = config
         self.resolution = int(resolution)
         self.seed = int(seed)
-        self.objects: list[RenderedObject] = []
+        self.objects: list[RenderedObject | AuthorsObject] = []
         self.entries: list[_ViewEntry] = []
         self.skipped_objects: list[str] = []
         self.skipped_views = 0
         wanted = None if include is None else set(include)
+        excluded = set(exclude)
         t = config.targets_per_sample
+        check_lighting_compat(roots, config.lighting_compat)
         for root in roots:
-            ds = open_dataset(root)
-            for oid in ds.object_ids:
-                if (wanted is not None and oid not in wanted) or oid in exclude:
+            authors = dataset_kind(root) == "authors"
+            ids = dataset_object_ids(root)
+            for oid in ids:
+                if (wanted is not None and oid not in wanted) or oid in excluded:
                     continue
                 try:
-                    obj = read_object(Path(root) / "objects" / oid)
+                    obj: RenderedObject | AuthorsObject
+                    if authors:
+                        obj = read_authors_object(Path(root) / "objects" / oid)
+                    else:
+                        obj = read_object(Path(root) / "objects" / oid)
                     poses = obj.poses()
                 except (GafferDataError, OSError, ValueError) as exc:
                     self.skipped_objects.append(f"{oid}: {exc}")
@@ -313,8 +466,14 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
                 self.objects.append(obj)
                 for view in obj.views:
                     n_lit = len(view.lit)
-                    if n_lit >= t + 1 or (view.area is not None and n_lit >= t):
-                        w2c = np.asarray(poses.w2c_blender[view.index], dtype=np.float32)
+                    has_area = (
+                        view.area_png is not None
+                        if isinstance(view, AuthorsView)
+                        else view.area is not None
+                    )
+                    if n_lit >= t + 1 or (has_area and n_lit >= t):
+                        row = view.row if isinstance(view, AuthorsView) else view.index
+                        w2c = np.asarray(poses.w2c_blender[row], dtype=np.float32)
                         self.entries.append(_ViewEntry(object_index=oi, view=view, w2c_blender=w2c))
                     else:
                         self.skipped_views += 1
@@ -334,7 +493,8 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
             raise DataError(
                 f"No usable view in {[str(r) for r in roots]}: need complete objects (with "
                 f"manifest.json) whose views have >= {t + 1} environment-map renders, or {t} plus an "
-                "area-light render. Render with `gaffer-data render --lightings N` (N > "
+                "area-light render (a converted authors' split: images per view, or 'random_lighting' "
+                "+ images). Render with `gaffer-data render --lightings N` (N > "
                 "`data.targets_per_sample`) or lower `data.targets_per_sample`."
             )
         self._cache = _EnvmapCache(
@@ -367,19 +527,12 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
                 index = int(rng.integers(len(self.entries)))
                 continue
             if failed:
-                return TrainItem(
-                    **{
-                        f: getattr(item, f)
-                        for f in item.__dataclass_fields__
-                        if f not in ("skipped", "skipped_files")
-                    },
-                    skipped=len(failed),
-                    skipped_files=tuple(failed),
-                )
+                return dataclasses.replace(item, skipped=len(failed), skipped_files=tuple(failed))
             return item
         raise DataError(
             f"{len(failed)} samples in a row could not be read (last: {failed[-1]}). Check the "
-            "dataset with `gaffer-data info ROOT --verify` and re-render the broken objects."
+            "dataset with `gaffer-data info ROOT --verify` and re-render (or re-convert) the broken "
+            "objects."
         )
 
     def _describe(self, index: int) -> str:
@@ -388,6 +541,10 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
 
     def _load(self, entry: _ViewEntry, rng: np.random.Generator) -> TrainItem:
         obj = self.objects[entry.object_index]
+        if isinstance(obj, AuthorsObject) and isinstance(entry.view, AuthorsView):
+            return self._load_authors(obj, entry, entry.view, rng)
+        if not (isinstance(obj, RenderedObject) and isinstance(entry.view, ViewRecord)):
+            raise DataError(f"internal: view entry of {obj.object_id!r} mixes dataset kinds")
         view = entry.view
         t = self.config.targets_per_sample
         lit = view.lit
@@ -417,6 +574,45 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
             input_image=input_image,
             target_images=target_images,
             envmaps=envmaps,
+            w2c_blender=torch.from_numpy(entry.w2c_blender.copy()),
+            input_is_area=bool(use_area),
+            object_id=obj.object_id,
+            view_index=view.index,
+        )
+
+    def _load_authors(
+        self,
+        obj: AuthorsObject,
+        entry: _ViewEntry,
+        view: AuthorsView,
+        rng: np.random.Generator,
+    ) -> TrainItem:
+        """An item of a converted authors' split: the same draws as `_load`, their encoded maps."""
+        # evaluation's reader of the authors' maps: RGB, PIL bilinear when resized, [1, 3, S, S]
+        from gaffer_diffusion.evaluation import _read_map
+
+        t = self.config.targets_per_sample
+        lit = view.lit
+        draw = float(rng.random())
+        use_area = view.area_png is not None and (
+            draw < self.config.area_light_prob or len(lit) < t + 1
+        )
+        order = rng.permutation(len(lit))
+        targets = [lit[i] for i in order[:t]]
+        size = self.resolution
+        if use_area and view.area_png is not None:
+            input_image = load_image_on_white(obj.path(view.area_png), size)
+        else:
+            input_image = load_image_on_white(obj.path(lit[int(order[t])].png), size)
+        target_images = torch.stack([load_image_on_white(obj.path(li.png), size) for li in targets])
+        ldr = torch.cat([_read_map(obj.path(li.envmap_ldr), size) for li in targets])
+        hdr = torch.cat([_read_map(obj.path(li.envmap_hdr), size) for li in targets])
+        return TrainItem(
+            input_image=input_image,
+            target_images=target_images,
+            envmaps=None,
+            encoded_ldr=ldr,
+            encoded_hdr=hdr,
             w2c_blender=torch.from_numpy(entry.w2c_blender.copy()),
             input_is_area=bool(use_area),
             object_id=obj.object_id,
@@ -505,4 +701,97 @@ def encode_batch_lighting(
     )
     return enc.ldr.to(device=device, dtype=torch.float32), enc.hdr.to(
         device=device, dtype=torch.float32
+    )
+
+
+def batch_lighting(
+    envmaps: Float[Tensor, "Ne He We 3"],
+    w2c_blender: Float[Tensor, "N 3 4"],
+    *,
+    encoded: Tensor | None = None,
+    encoded_ldr: Float[Tensor, "Na 3 S S"] | None = None,
+    encoded_hdr: Float[Tensor, "Na 3 S S"] | None = None,
+    size: int,
+    compat: LightingCompat,
+    device: torch.device | str | None = None,
+) -> tuple[Float[Tensor, "N 3 S S"], Float[Tensor, "N 3 S S"]]:
+    """Camera-frame LDR and HDR maps of N lightings given as environment maps and/or encoded maps.
+
+    Rows where `encoded` is False come from `envmaps` (in order; rotated into the row's camera frame
+    and encoded by `encode_batch_lighting`, one call), rows where it is True from `encoded_ldr` /
+    `encoded_hdr` (in order; the authors' maps, used as they are).
+
+    Args:
+        envmaps: `[Ne, He, We, 3]` the environment maps of the rows with `encoded` False.
+        w2c_blender: `[N, 3, 4]` every row's view (only the environment-map rows use it).
+        encoded: `[N]` bool, or None when every row is an environment map.
+        encoded_ldr: `[Na, 3, size, size]` the pre-encoded LDR maps of the other rows.
+        encoded_hdr: `[Na, 3, size, size]` their HDR maps.
+        size: output side length.
+        compat: gaffer-envmap encoding of the environment maps.
+        device: where the result lives.
+
+    Returns:
+        `(ldr, hdr)`, each `[N, 3, size, size]` float32 in [0, 1] on `device`.
+
+    Raises:
+        DataError: the row counts or map sizes disagree.
+    """
+    n = int(w2c_blender.shape[0])
+    if encoded is None or not bool(encoded.any()):
+        if envmaps.shape[0] != n:
+            raise DataError(f"{envmaps.shape[0]} environment maps for {n} views.")
+        return encode_batch_lighting(envmaps, w2c_blender, size=size, compat=compat, device=device)
+    enc = encoded.to(device="cpu", dtype=torch.bool)
+    n_enc = int(enc.sum())
+    if (
+        enc.shape != (n,)
+        or encoded_ldr is None
+        or encoded_hdr is None
+        or encoded_ldr.shape[0] != n_enc
+        or encoded_hdr.shape[0] != n_enc
+        or envmaps.shape[0] != n - n_enc
+    ):
+        raise DataError(
+            f"`batch_lighting`: {n} views, `encoded` marks {n_enc}, but got {envmaps.shape[0]} "
+            "environment maps and "
+            f"{None if encoded_ldr is None else encoded_ldr.shape[0]} encoded maps."
+        )
+    if tuple(encoded_ldr.shape[1:]) != (3, size, size) or encoded_hdr.shape != encoded_ldr.shape:
+        raise DataError(
+            f"the encoded lighting maps are {tuple(encoded_ldr.shape[1:])}; expected (3, {size}, "
+            f"{size}): read the dataset at the model resolution."
+        )
+    ldr = torch.empty(n, 3, size, size, device=device, dtype=torch.float32)
+    hdr = torch.empty_like(ldr)
+    ldr[enc.to(ldr.device)] = encoded_ldr.to(device=ldr.device, dtype=torch.float32)
+    hdr[enc.to(hdr.device)] = encoded_hdr.to(device=hdr.device, dtype=torch.float32)
+    if n_enc < n:
+        env_ldr, env_hdr = encode_batch_lighting(
+            envmaps, w2c_blender[~enc], size=size, compat=compat, device=device
+        )
+        ldr[~enc.to(ldr.device)] = env_ldr
+        hdr[~enc.to(hdr.device)] = env_hdr
+    return ldr, hdr
+
+
+def batch_lighting_of(
+    batch: TrainBatch,
+    *,
+    size: int,
+    compat: LightingCompat,
+    device: torch.device | str | None = None,
+) -> tuple[Float[Tensor, "BT 3 S S"], Float[Tensor, "BT 3 S S"]]:
+    """The `[B*T, 3, size, size]` LDR and HDR maps of every target of `batch` (item-major order)."""
+    t = batch.targets_per_sample
+    enc = batch.lighting_encoded
+    return batch_lighting(
+        batch.envmaps.flatten(0, 1),
+        batch.w2c_blender.repeat_interleave(t, dim=0),
+        encoded=None if enc is None else enc.repeat_interleave(t),
+        encoded_ldr=None if batch.encoded_ldr is None else batch.encoded_ldr.flatten(0, 1),
+        encoded_hdr=None if batch.encoded_hdr is None else batch.encoded_hdr.flatten(0, 1),
+        size=size,
+        compat=compat,
+        device=device,
     )

@@ -4,7 +4,8 @@ One optimiser step (per process, per micro-batch):
 
 1. the data loader yields B samples, each an input view and T target views with their lighting;
 2. the target lightings are rotated into the view's camera frame and split into E_L / E_H by
-   gaffer-envmap, batched on the training device (no PNG round trip);
+   gaffer-envmap, batched on the training device (no PNG round trip); items of a converted authors'
+   split bring their pre-encoded E_L / E_H PNGs instead, used as they are;
 3. one VAE call encodes the B inputs and the T*B HDR maps, LDR maps and targets; CLIP embeds the inputs;
 4. Neural Gaffer §3.2: z_t = sqrt(abar_t) z_0 + sqrt(1 - abar_t) eps with t ~ U{0..999}, the UNet sees
    `[z_t, E(x), E(E_H), E(E_L)]` and the CLIP context; loss = ||eps - eps_theta||^2;
@@ -37,7 +38,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from gaffer_data import open_dataset
 from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
@@ -49,8 +49,10 @@ from gaffer_diffusion.training.dataset import (
     KeySampler,
     RelightTrainDataset,
     TrainBatch,
+    batch_lighting_of,
+    check_lighting_compat,
     collate_items,
-    encode_batch_lighting,
+    dataset_object_ids,
     split_object_ids,
 )
 from gaffer_diffusion.training.ema import EMAModel
@@ -182,12 +184,9 @@ class _Trainer:
         res = m.config.resolution
         inputs = batch.input_images.to(dev, non_blocking=True)  # [B, 3, H, W]
         targets = batch.target_images.to(dev, non_blocking=True).flatten(0, 1)  # [BT, 3, H, W]
-        ldr, hdr = encode_batch_lighting(
-            batch.envmaps.flatten(0, 1),
-            batch.w2c_blender.repeat_interleave(t, dim=0),
-            size=res,
-            compat=cfg.data.lighting_compat,
-            device=dev,
+        # environment maps rotated + encoded here; the authors' pre-encoded maps used as they are
+        ldr, hdr = batch_lighting_of(
+            batch, size=res, compat=cfg.data.lighting_compat, device=dev
         )  # [BT, 3, H, W] each, camera frame, in [0, 1]
         with torch.no_grad():
             # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
@@ -368,14 +367,22 @@ def train(
 
     # ---------------------------------------------------------------- data
     res = model.config.resolution
+    # renders and converted authors' splits (`gaffer-data convert-authors`) alike, in any mix
+    train_roots = [cfg.data.root, *cfg.data.extra_roots]
+    check_lighting_compat(
+        [*train_roots, *([] if cfg.data.val_root is None else [cfg.data.val_root])],
+        cfg.data.lighting_compat,
+    )
     if cfg.data.val_root is not None:
-        train_ids, val_ids, val_roots = None, None, [cfg.data.val_root]
+        val_ids, val_roots = None, [cfg.data.val_root]
+        held_out: tuple[str, ...] = ()
     else:
-        all_ids = open_dataset(cfg.data.root).object_ids
-        train_list, val_list = split_object_ids(all_ids, cfg.data.val_objects)
-        train_ids, val_ids, val_roots = train_list, val_list, [cfg.data.root]
+        all_ids = dataset_object_ids(cfg.data.root)
+        _, val_list = split_object_ids(all_ids, cfg.data.val_objects)
+        val_ids, val_roots, held_out = val_list, [cfg.data.root], val_list
+    # held-out ids are left out of every training root (a copy of one elsewhere cannot leak in)
     train_ds = RelightTrainDataset(
-        [cfg.data.root], cfg.data, res, seed=cfg.train.seed, include=train_ids
+        train_roots, cfg.data, res, seed=cfg.train.seed, exclude=held_out
     )
     valset: ValidationSet | None = None
     if cfg.validation.every_steps > 0 and (val_ids is None or val_ids):

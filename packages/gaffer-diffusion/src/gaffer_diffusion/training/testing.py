@@ -1,5 +1,8 @@
 """Synthetic rendered datasets for tests: gaffer-data's on-disk layout without Blender.
 
+`write_authors_release` writes the authors' released layout instead (to convert with `gaffer-data
+convert-authors`).
+
 Each object is a flat disc of one albedo; its image under an environment map is the disc shaded by the
 map's mean colour (a crude but learnable "relighting"), composited with a straight alpha on a
 transparent film. Manifests are written with gaffer-data's public schema and serialiser, so
@@ -195,4 +198,51 @@ def write_synthetic_dataset(
         ),
         encoding="utf-8",
     )
+    return root
+
+
+def write_authors_release(
+    root: Path,
+    *,
+    objects: int = 2,
+    views: int = 2,
+    lightings: int = 3,
+    size: int = 32,
+    map_size: int = 24,
+    area: bool = True,
+    seed: int = 0,
+) -> Path:
+    """A tiny split in the authors' released layout; returns the split folder `root`.
+
+    Per object `objK/`: `{VVV}_RT.npy`, `{VVV}_{LLL}_{env}.png` (RGBA discs shaded by the lighting's
+    colour), `random_lighting_{VVV}.png` (with `area`) and the camera-frame maps `LDR/` and
+    `HDR_rescaled/` (same names, RGB `map_size` squares: the colour over a random texture), inside the
+    object folder as in some of the authors' archives. Convert it with
+    `gaffer_data.convert.convert_authors(root, out)`.
+    """
+    from gaffer_envmap.poses import orbit_w2c_blender
+
+    rng = np.random.default_rng(seed)
+    names = ("sky_000", "sky_090", "cave_045", "sun_180", "dusk_270")
+    for o in range(objects):
+        folder = root / f"obj{o}"
+        folder.mkdir(parents=True, exist_ok=True)
+        albedo = rng.uniform(0.2, 0.9, size=3)
+        for v in range(views):
+            pose = orbit_w2c_blender(float(rng.uniform(0, 360)), float(rng.uniform(-30, 60)), 2.0)
+            np.save(folder / f"{v:03d}_RT.npy", pose.matrix)
+            if area:
+                rgba = _disc_rgba(size, albedo, np.full(3, 0.7))
+                _save_png(folder / f"random_lighting_{v:03d}.png", rgba)
+            for li in range(lightings):
+                colour = rng.uniform(0.1, 1.5, size=3)
+                name = f"{v:03d}_{li:03d}_{names[li % len(names)]}.png"
+                _save_png(folder / name, _disc_rgba(size, albedo, colour))
+                texture = rng.uniform(0.0, 0.3, size=(map_size, map_size, 1))
+                ldr = np.clip(np.minimum(colour, 1.0) ** (1 / 2.2) * 0.7 + texture, 0, 1)
+                hdr = np.clip(np.log1p(10 * colour) / np.log1p(15.0) * 0.7 + texture, 0, 1)
+                for sub, arr in (("LDR", ldr), ("HDR_rescaled", hdr)):
+                    path = folder / sub / name
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    Image.fromarray((arr * 255).round().astype(np.uint8), "RGB").save(path)
     return root

@@ -20,7 +20,7 @@ from gaffer_diffusion.metrics import psnr
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.training.config import LightingCompat, ValidationConfig
-from gaffer_diffusion.training.dataset import RelightTrainDataset, encode_batch_lighting
+from gaffer_diffusion.training.dataset import RelightTrainDataset, batch_lighting
 from gaffer_diffusion.training.ema import EMAModel
 
 
@@ -28,19 +28,29 @@ from gaffer_diffusion.training.ema import EMAModel
 class ValidationSet:
     """Fixed held-out pairs (one target lighting each).
 
+    Pairs of a render carry an environment map, pairs of a converted authors' split their pre-encoded
+    maps (`lighting_encoded` True); `envmaps` and `encoded_*` hold only the rows of their kind, in order
+    (see `gaffer_diffusion.training.dataset.batch_lighting`).
+
     Attributes:
         input_images: `[N, 3, H, W]` inputs in [0, 1].
         target_images: `[N, 3, H, W]` ground-truth renders under the target lighting.
-        envmaps: `[N, He, We, 3]` target environment maps.
+        envmaps: `[Ne, He, We, 3]` target environment maps of the Ne render pairs.
         w2c_blender: `[N, 3, 4]` view poses.
         names: `object/view` labels.
+        lighting_encoded: `[N]` bool, or None when every pair has an environment map.
+        encoded_ldr: `[Na, 3, H, W]` the authors' LDR maps of the other pairs, or None.
+        encoded_hdr: `[Na, 3, H, W]` their HDR maps, or None.
     """
 
     input_images: Float[Tensor, "N 3 H W"]
     target_images: Float[Tensor, "N 3 H W"]
-    envmaps: Float[Tensor, "N He We 3"]
+    envmaps: Float[Tensor, "Ne He We 3"]
     w2c_blender: Float[Tensor, "N 3 4"]
     names: tuple[str, ...]
+    lighting_encoded: Tensor | None = None
+    encoded_ldr: Float[Tensor, "Na 3 H W"] | None = None
+    encoded_hdr: Float[Tensor, "Na 3 H W"] | None = None
 
     @property
     def size(self) -> int:
@@ -72,12 +82,18 @@ class ValidationResult:
 def build_validation_set(dataset: RelightTrainDataset, num_samples: int) -> ValidationSet:
     """`num_samples` items of `dataset` (keys 0..N-1, first target of each), loaded once."""
     items = [dataset[k] for k in range(num_samples)]
+    env = [i.envmaps[0] for i in items if i.envmaps is not None]
+    ldr = [i.encoded_ldr[0] for i in items if i.encoded_ldr is not None]
+    hdr = [i.encoded_hdr[0] for i in items if i.encoded_hdr is not None]
     return ValidationSet(
         input_images=torch.stack([i.input_image for i in items]),
         target_images=torch.stack([i.target_images[0] for i in items]),
-        envmaps=torch.stack([i.envmaps[0] for i in items]),
+        envmaps=torch.stack(env) if env else torch.zeros(0, 0, 0, 3),
         w2c_blender=torch.stack([i.w2c_blender for i in items]),
         names=tuple(f"{i.object_id}/{i.view_index}" for i in items),
+        lighting_encoded=torch.tensor([i.lighting_encoded for i in items]) if ldr else None,
+        encoded_ldr=torch.stack(ldr) if ldr else None,
+        encoded_hdr=torch.stack(hdr) if hdr else None,
     )
 
 
@@ -126,15 +142,23 @@ def validate(
         num_inference_steps=config.num_inference_steps, guidance_scale=config.guidance_scale
     )
     res = model.config.resolution
+    # every pair's maps at once (N is small): environment maps encoded, the authors' maps as they are
+    ldr_all, hdr_all = batch_lighting(
+        valset.envmaps,
+        valset.w2c_blender,
+        encoded=valset.lighting_encoded,
+        encoded_ldr=valset.encoded_ldr,
+        encoded_hdr=valset.encoded_hdr,
+        size=res,
+        compat=compat,
+        device=device,
+    )
     preds = []
     for lo in range(0, valset.size, config.batch_size):
         hi = min(lo + config.batch_size, valset.size)
-        ldr, hdr = encode_batch_lighting(
-            valset.envmaps[lo:hi], valset.w2c_blender[lo:hi], size=res, compat=compat, device=device
-        )
         cond = RelightingConditions(
             image=valset.input_images[lo:hi].to(device),
-            lighting=LightingMaps(ldr=ldr, hdr=hdr),
+            lighting=LightingMaps(ldr=ldr_all[lo:hi], hdr=hdr_all[lo:hi]),
         )
         out = pipe(cond, sampling, seeds=[config.seed + i for i in range(lo, hi)])
         preds.append(out.images.float().cpu())
