@@ -210,3 +210,42 @@ def test_gaffer_tiny_samples_from_t999_at_any_step_count() -> None:
     assert int(s.timesteps[0]) == 1
     with pytest.raises(ConfigError, match=r"scheduler\.timestep_spacing"):
         SchedulerConfig(timestep_spacing="uniform")
+
+
+def test_residual_target_round_trip_and_paper_default_unchanged() -> None:
+    g = torch.Generator().manual_seed(0)
+    target, image = torch.randn(2, 4, 8, 8, generator=g), torch.randn(2, 4, 8, 8, generator=g)
+    paper = get_preset("tiny").setup(seed=0)
+    assert not paper.config.residual
+    # the paper's model: exactly the scaled target latent, as before the option existed
+    assert torch.equal(paper.diffusion_target(target, image), target * 0.18215)
+    assert torch.equal(paper.decodable_latents(target * 0.18215, image), target * 0.18215 / 0.18215)
+    cfg = dataclasses.replace(_small_pixel_config(), residual=True)
+    model = cfg.setup(seed=0)
+    z0 = model.diffusion_target(target, image)
+    assert torch.equal(z0, target - image)
+    torch.testing.assert_close(model.decodable_latents(z0, image), target)
+    assert get_preset("gaffer-tiny").residual
+
+
+def test_residual_pipeline_adds_the_input_back_and_survives_save_load(tmp_path: Path) -> None:
+    cfg = dataclasses.replace(_small_pixel_config(), residual=True)
+    model = cfg.setup(seed=0)
+    cond = random_conditions(2, 32, seed=3)
+    pipe = RelightPipeline(model)
+    out = pipe(cond, SamplingConfig(num_inference_steps=2), seeds=[0, 1])
+    # pixel space: the image is the sample plus the input, in [-1, 1]
+    expected = ((out.latents[:, :3] + cond.image * 2 - 1) / 2 + 0.5).clamp(0, 1)
+    torch.testing.assert_close(out.images, expected)
+    save_pretrained(model, tmp_path / "m")
+    loaded = load_pretrained(tmp_path / "m").model
+    assert loaded.config.residual and model_config_matches(loaded.config, cfg)
+    again = RelightPipeline(loaded)(cond, SamplingConfig(num_inference_steps=2), seeds=[0, 1])
+    torch.testing.assert_close(again.images, out.images)
+    manifest = json.loads((tmp_path / "m" / "gaffer_model.json").read_text())
+    manifest["config"]["residual"] = "yes"
+    (tmp_path / "m" / "gaffer_model.json").write_text(json.dumps(manifest))
+    from gaffer_diffusion.errors import CheckpointMismatchError
+
+    with pytest.raises(CheckpointMismatchError, match=r"config\.residual"):
+        load_pretrained(tmp_path / "m")

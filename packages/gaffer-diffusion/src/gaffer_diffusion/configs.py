@@ -15,7 +15,8 @@ Presets (`get_preset`):
   milliseconds per forward.
 - `"gaffer-tiny"`: the shipped small model we train ourselves on CPU (`gaffer_diffusion.pretrained`):
   pixel space (`VAEConfig(kind="pixel")`, 64x64 "latents" `[R, G, B, luminance]`), a ~3M-parameter UNet
-  with attention at 16x16, v-prediction sampled with "trailing" timesteps, and the `"tiny"` CLIP tower.
+  with attention at 16x16, v-prediction sampled with "trailing" timesteps, diffusing the residual
+  target - input (`ModelConfig.residual`), and the `"tiny"` CLIP tower.
 """
 
 import dataclasses
@@ -255,6 +256,10 @@ class ModelConfig:
         vae: autoencoder shapes.
         image_encoder: CLIP vision tower shapes; `projection_dim` must equal `unet.cross_attention_dim`.
         scheduler: noise schedule.
+        residual: what is diffused. False (the paper, the released checkpoint): the target image's
+            latent. True (gaffer-tiny): the target's latent minus the input image's latent, so the
+            model only has to learn what the lighting changes; sampling adds the input's latent back
+            before decoding (`NeuralGafferModel.diffusion_target` / `decodable_latents`).
 
     Raises:
         ConfigError: when the parts are inconsistent.
@@ -271,6 +276,7 @@ class ModelConfig:
     vae: VAEConfig = field(default_factory=VAEConfig)
     image_encoder: ImageEncoderConfig = field(default_factory=ImageEncoderConfig)
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
+    residual: bool = False
 
     def __post_init__(self) -> None:
         factor = self.vae.downsampling_factor
@@ -383,6 +389,9 @@ def _gaffer_tiny() -> ModelConfig:
         # "trailing" spacing: sampling starts at t=999 whatever the step count ("leading" starts a
         # 1-step sample at t=1 and a 5-step one at t=801, on pure noise the model never saw there)
         scheduler=SchedulerConfig(prediction_type="v_prediction", timestep_spacing="trailing"),
+        # diffuse target - input: a model that has learnt nothing yet returns the input, not noise,
+        # and its capacity goes to the lighting change (a CPU-trained model cannot waste it)
+        residual=True,
     )
 
 

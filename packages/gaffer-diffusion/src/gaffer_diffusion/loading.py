@@ -484,6 +484,13 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
     sched = _scheduler_config(root, how)
     name = str(manifest.get("config", {}).get("name", "loaded"))
     config = config_from_modules(unet, vae, encoder, sched, name=name)
+    # what is diffused is not in any module's config: only the manifest records it
+    residual = manifest.get("config", {}).get("residual", False)
+    if not isinstance(residual, bool):
+        raise CheckpointMismatchError(
+            f"{root / MANIFEST_NAME}: `config.residual` is {residual!r}; expected true or false."
+        )
+    config = dataclasses.replace(config, residual=residual)
     model = NeuralGafferModel(config=config, unet=unet.eval(), vae=vae, image_encoder=encoder)
     return LoadResult(model=model, report=report)
 

@@ -4,6 +4,8 @@ from dataclasses import dataclass
 
 import torch
 from diffusers import AutoencoderKL, UNet2DConditionModel
+from jaxtyping import Float
+from torch import Tensor
 from transformers import CLIPVisionModelWithProjection
 
 from gaffer_diffusion.configs import ModelConfig
@@ -45,6 +47,24 @@ class NeuralGafferModel:
         for module in (self.unet, self.vae, self.image_encoder):
             module.eval()
         return self
+
+    def diffusion_target(
+        self, latents: Float[Tensor, "N 4 h w"], image_latents: Float[Tensor, "N 4 h w"]
+    ) -> Float[Tensor, "N 4 h w"]:
+        """z_0, what the UNet denoises, from the raw VAE latents of the target and of the input.
+
+        The target's latent (minus the input's when `config.residual`), times the VAE scaling factor:
+        only this latent is scaled, never the conditioning latents (official implementation §1).
+        """
+        z = latents - image_latents if self.config.residual else latents
+        return z * self.config.vae.scaling_factor
+
+    def decodable_latents(
+        self, z0: Float[Tensor, "N 4 h w"], image_latents: Float[Tensor, "N 4 h w"]
+    ) -> Float[Tensor, "N 4 h w"]:
+        """The inverse of `diffusion_target`: the raw VAE latents to decode from a sample z_0."""
+        raw = z0 / self.config.vae.scaling_factor
+        return raw + image_latents if self.config.residual else raw
 
     @property
     def device(self) -> torch.device:

@@ -322,7 +322,7 @@ def _denoise(
         z = scheduler.step(eps, t, z, **step_kwargs).prev_sample
         if callback is not None:
             callback(i, len(timesteps))
-    decoded = model.vae.decode(z / model.config.vae.scaling_factor).sample
+    decoded = model.vae.decode(model.decodable_latents(z, enc.image_latents)).sample
     images = (decoded.float() / 2.0 + 0.5).clamp(0.0, 1.0)
     # clamp keeps NaN, so the caller's finiteness check still sees them
     images = torch.where(torch.isfinite(decoded.float()), images, decoded.float())

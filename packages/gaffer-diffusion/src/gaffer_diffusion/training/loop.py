@@ -197,8 +197,9 @@ class _Trainer:
             image_lat = cond_all[:b].repeat_interleave(t, dim=0)  # [BT, 4, h, w] raw latents
             hdr_lat = cond_all[b : b + n]
             ldr_lat = cond_all[b + n : b + 2 * n]
-            # only the target latent is scaled (official implementation §1)
-            z0 = sampled[b + 2 * n :] * m.config.vae.scaling_factor  # [BT, 4, h, w]
+            # only the target latent is scaled (official implementation §1); residual models
+            # diffuse target - input (`ModelConfig.residual`)
+            z0 = m.diffusion_target(sampled[b + 2 * n :], image_lat)  # [BT, 4, h, w]
             pixels = clip_preprocess(
                 inputs.to(self.weight_dtype) * 2.0 - 1.0, m.config.image_encoder.image_size
             )

@@ -183,19 +183,25 @@ class DiffusionGuide:
     def encode_image(
         self,
         images: Float[Tensor, "B 3 R R"],
+        encoded: EncodedConditions,
         *,
         mode: str = "mode",
         generator: torch.Generator | None = None,
     ) -> Float[Tensor, "B 4 h w"]:
-        """Scaled latent z_0 = E(x) x 0.18215 of images in [0, 1] (differentiable w.r.t. `images`)."""
+        """The diffusion latent z_0 of images in [0, 1] (differentiable w.r.t. `images`): E(x) x
+        0.18215 for the paper's model; E(x) - E(input) (scaled) for a residual one such as gaffer-tiny,
+        whose input latents `encoded` holds (`NeuralGafferModel.diffusion_target`)."""
         x = (images * 2.0 - 1.0).to(device=self.pipeline.device, dtype=self.pipeline.dtype)
         dist = self.model.vae.encode(x).latent_dist
         z = dist.mode() if mode == "mode" else dist.sample(generator=generator)
-        return z * self.model.config.vae.scaling_factor
+        return self.model.diffusion_target(z, encoded.image_latents.to(z))
 
-    def decode(self, z: Float[Tensor, "B 4 h w"]) -> Float[Tensor, "B 3 R R"]:
-        """Images in [0, 1] from scaled latents (as the pipeline decodes)."""
-        x = self.model.vae.decode(z / self.model.config.vae.scaling_factor).sample
+    def decode(
+        self, z: Float[Tensor, "B 4 h w"], encoded: EncodedConditions
+    ) -> Float[Tensor, "B 3 R R"]:
+        """Images in [0, 1] from diffusion latents (as the pipeline decodes)."""
+        raw = self.model.decodable_latents(z, encoded.image_latents.to(z))
+        x = self.model.vae.decode(raw).sample
         return (x.float() / 2.0 + 0.5).clamp(0.0, 1.0)
 
     @torch.no_grad()
@@ -227,7 +233,7 @@ class DiffusionGuide:
             raise ShapeError("images", tuple(images.shape), "[B, 3, R, R]")
         enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
         sched, ts = self._timesteps(t_frac)
-        z0 = self.encode_image(images, mode=encode_mode, generator=generator)
+        z0 = self.encode_image(images, enc, mode=encode_mode, generator=generator)
         if noise is None:
             noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32)
         noise = noise.to(device=z0.device, dtype=z0.dtype)
@@ -239,7 +245,7 @@ class DiffusionGuide:
         for t in ts:
             eps = self._eps(sched.scale_model_input(z, t), t, enc, g)  # type: ignore[attr-defined]
             z = sched.step(eps, t, z, eta=0.0).prev_sample  # type: ignore[attr-defined]
-        return self.decode(z)
+        return self.decode(z, enc)
 
     @torch.no_grad()
     def sample_from_noise(
@@ -274,13 +280,23 @@ class DiffusionGuide:
         lo, hi = config.sds_t_range
         t = torch.randint(int(lo * n_train), int(hi * n_train) + 1, (1,), generator=generator)
         t = t.to(self.pipeline.device)
-        z0 = self.encode_image(images, mode=config.encode_mode, generator=generator)
+        z0 = self.encode_image(images, enc, mode=config.encode_mode, generator=generator)
         noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32).to(z0)
         with torch.no_grad():
             z_t = sched.add_noise(z0.detach(), noise, t.repeat(z0.shape[0]))  # type: ignore[attr-defined]
-            eps = self._eps(z_t, t, enc, config.sds_guidance_scale)
+            pred = self._eps(z_t, t, enc, config.sds_guidance_scale)
             alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)  # type: ignore[attr-defined]
+            eps = _as_epsilon(pred, z_t, alpha_bar, self.model.config.scheduler.prediction_type)
             grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)
             grad = torch.nan_to_num(grad)
         target = (z0 - grad).detach()
         return 0.5 * F.mse_loss(z0.float(), target.float(), reduction="sum") / z0.shape[0]
+
+
+def _as_epsilon(pred: Tensor, z_t: Tensor, alpha_bar: Tensor, prediction_type: str) -> Tensor:
+    """The UNet's output as a noise estimate, whatever it predicts (SDS needs eps_hat)."""
+    if prediction_type == "v_prediction":  # v = sqrt(abar) eps - sqrt(1 - abar) z_0
+        return alpha_bar.sqrt() * pred + (1.0 - alpha_bar).sqrt() * z_t
+    if prediction_type == "sample":  # z_t = sqrt(abar) z_0 + sqrt(1 - abar) eps
+        return (z_t - alpha_bar.sqrt() * pred) / (1.0 - alpha_bar).sqrt()
+    return pred
