@@ -256,11 +256,11 @@ def test_evaluate_dataset_scores_the_unrelit_input_baseline(dataset) -> None:
     assert off.baseline is None and "Baseline" not in off.to_markdown()
     assert on.baseline is not None and len(on.baseline.items) == len(pairs)
     # the baseline is the input image itself, scored like a prediction against the target
-    from gaffer_diffusion.evaluation import _read_rgba, _to_chw
+    from gaffer_diffusion.evaluation import _to_chw, read_rgba_on_white
 
     p = pairs[0]
-    inp = _to_chw([_read_rgba(p.input_image, 64)[0]])
-    gt = _to_chw([_read_rgba(p.target_image, 64)[0]])
+    inp = _to_chw([read_rgba_on_white(p.input_image, 64)[0]])
+    gt = _to_chw([read_rgba_on_white(p.target_image, 64)[0]])
     direct = evaluate_images(inp, gt, perceptual=None)
     assert on.baseline.items[0].raw.psnr == pytest.approx(direct.mean_raw.psnr, abs=1e-4)
     # the discs differ in colour only, so aligning the input's channels to the target must help

@@ -258,15 +258,6 @@ def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGaffe
     return result.model
 
 
-def _read_map_png(path: Path, size: int) -> torch.Tensor:
-    try:
-        with Image.open(path) as im:
-            arr = np.asarray(im.convert("RGB").resize((size, size), Image.Resampling.BILINEAR))
-    except (OSError, ValueError) as exc:
-        raise InputValueError(f"Could not read the lighting map `{path}`: {exc}") from exc
-    return torch.from_numpy(arr.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
-
-
 def _pose(args: argparse.Namespace) -> Any:
     from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 
@@ -297,7 +288,11 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
             raise ConfigError("Pass both `--ldr` and `--hdr` (pre-encoded maps) and no `--envmap`.")
         if frames > 1:
             raise ConfigError("`--turntable` needs `--envmap` (pre-encoded maps cannot be spun).")
-        return LightingMaps(ldr=_read_map_png(args.ldr, size), hdr=_read_map_png(args.hdr, size))
+        from gaffer_diffusion.evaluation import read_lighting_map
+
+        return LightingMaps(
+            ldr=read_lighting_map(args.ldr, size), hdr=read_lighting_map(args.hdr, size)
+        )
     if args.envmap is None:
         raise ConfigError(
             "Pass `--envmap ENV.exr` (or `--envmaps DIR`) with a pose, or pre-encoded `--ldr` and "

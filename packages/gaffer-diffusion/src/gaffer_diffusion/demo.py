@@ -285,7 +285,7 @@ def _auto_input(root: Path) -> InputLighting:
 
 
 def _read_example(root: Path, choice: InputChoice, size: int) -> _Example:
-    from gaffer_diffusion.evaluation import _read_mask, _read_rgba
+    from gaffer_diffusion.evaluation import read_mask, read_rgba_on_white
     from gaffer_envmap.bundled import bundled_hdris
 
     _require_gaffer_data()
@@ -312,12 +312,12 @@ def _read_example(root: Path, choice: InputChoice, size: int) -> _Example:
             f"`--example` {root} is a converted authors' dataset (pre-encoded maps, no env maps or "
             "poses): the demo needs a gaffer-data render. Score it with `gaffer-diffusion evaluate`."
         )
-    input_rgb, _ = _read_rgba(first.input_image, size)
+    input_rgb, _ = read_rgba_on_white(first.input_image, size)
     targets, masks = [], []
     for p in pairs:
-        rgb, alpha = _read_rgba(p.target_image, size)
+        rgb, alpha = read_rgba_on_white(p.target_image, size)
         targets.append(rgb)
-        masks.append(alpha if p.mask is None else _read_mask(p.mask, size))
+        masks.append(alpha if p.mask is None else read_mask(p.mask, size))
     return _Example(
         pairs=pairs,
         input_rgb=_chw(np.stack([input_rgb])),

@@ -405,7 +405,7 @@ def _render_pairs(
     return pairs
 
 
-def _read_rgba(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
+def read_rgba_on_white(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
     """`[S, S, 3]` float32 sRGB composited on white and `[S, S]` alpha, both in [0, 1]."""
     try:
         with Image.open(path) as im:
@@ -420,7 +420,8 @@ def _read_rgba(path: Path, size: int) -> tuple[np.ndarray, np.ndarray]:
     return arr[..., :3] * a + (1.0 - a), arr[..., 3]
 
 
-def _read_mask(path: Path, size: int) -> np.ndarray:
+def read_mask(path: Path, size: int) -> np.ndarray:
+    """`[S, S]` float32 mask in [0, 1] from a greyscale (or any) image file, resized to `size`."""
     try:
         with Image.open(path) as im:
             m = im.convert("L")
@@ -446,7 +447,7 @@ def _augmented_envmap(
     return env
 
 
-def _read_map(path: Path, size: int) -> Tensor:
+def read_lighting_map(path: Path, size: int) -> Tensor:
     """`[1, 3, size, size]` encoded lighting map in [0, 1] (PIL bilinear when resized, as the authors)."""
     try:
         with Image.open(path) as im:
@@ -472,8 +473,8 @@ def pair_lighting(pairs: Sequence[EvalPair], size: int, compat: CompatMode) -> L
     for p in pairs:
         lt = p.lighting
         if isinstance(lt, EncodedLightingFiles):
-            ldr.append(_read_map(lt.ldr, size))
-            hdr.append(_read_map(lt.hdr, size))
+            ldr.append(read_lighting_map(lt.ldr, size))
+            hdr.append(read_lighting_map(lt.hdr, size))
             continue
         try:
             env = _augmented_envmap(lt.source, lt.flip, lt.yaw_step, lt.num_steps, lt.strength)
@@ -560,10 +561,12 @@ def evaluate_dataset(
     done = 0
     try:
         for batch in _batches(pairs, config.batch_size):
-            inputs = [_read_rgba(p.input_image, size)[0] for p in batch]
-            targets, alphas = zip(*(_read_rgba(p.target_image, size) for p in batch), strict=True)
+            inputs = [read_rgba_on_white(p.input_image, size)[0] for p in batch]
+            targets, alphas = zip(
+                *(read_rgba_on_white(p.target_image, size) for p in batch), strict=True
+            )
             masks = [
-                a if p.mask is None else _read_mask(p.mask, size)
+                a if p.mask is None else read_mask(p.mask, size)
                 for p, a in zip(batch, alphas, strict=True)
             ]
             cond = RelightingConditions(

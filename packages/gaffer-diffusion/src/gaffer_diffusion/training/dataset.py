@@ -589,7 +589,7 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
     ) -> TrainItem:
         """An item of a converted authors' split: the same draws as `_load`, their encoded maps."""
         # evaluation's reader of the authors' maps: RGB, PIL bilinear when resized, [1, 3, S, S]
-        from gaffer_diffusion.evaluation import _read_map
+        from gaffer_diffusion.evaluation import read_lighting_map
 
         t = self.config.targets_per_sample
         lit = view.lit
@@ -605,8 +605,8 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         else:
             input_image = load_image_on_white(obj.path(lit[int(order[t])].png), size)
         target_images = torch.stack([load_image_on_white(obj.path(li.png), size) for li in targets])
-        ldr = torch.cat([_read_map(obj.path(li.envmap_ldr), size) for li in targets])
-        hdr = torch.cat([_read_map(obj.path(li.envmap_hdr), size) for li in targets])
+        ldr = torch.cat([read_lighting_map(obj.path(li.envmap_ldr), size) for li in targets])
+        hdr = torch.cat([read_lighting_map(obj.path(li.envmap_hdr), size) for li in targets])
         return TrainItem(
             input_image=input_image,
             target_images=target_images,
