@@ -65,7 +65,7 @@ def look_at_c2w_blender(
     bit-identical to the formula this package used before.
 
     Raises:
-        gaffer_envmap.PoseError: `position` equals `target`.
+        gaffer_envmap.errors.PoseError: `position` equals `target`.
     """
     pos = np.asarray(position, dtype=np.float64)
     tx, ty, tz = (float(c) for c in target)
