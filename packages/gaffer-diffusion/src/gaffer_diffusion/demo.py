@@ -87,6 +87,8 @@ class DemoConfig:
         num_inference_steps: denoising steps; None: the model's suggestion (gaffer-tiny: 20), else 50.
         guidance_scale: classifier-free guidance scale; None: the model's suggestion (gaffer-tiny: 1,
             no unconditional branch), else 3 (the paper's).
+        average_samples: samples averaged per image (`SamplingConfig.average_samples`); None: the
+            model's suggestion, else 1.
         frames: turntable frames (0: no turntable).
         fps: turntable GIF frames per second.
         seed: the initial-noise seed of every image.
@@ -105,6 +107,7 @@ class DemoConfig:
     input_lighting: InputChoice = "auto"
     num_inference_steps: int | None = None
     guidance_scale: float | None = None
+    average_samples: int | None = None
     frames: int = 24
     fps: float = 12.0
     seed: int = 0
@@ -126,6 +129,7 @@ class DemoConfig:
         SamplingConfig(
             num_inference_steps=self.num_inference_steps or DEFAULT_STEPS,
             guidance_scale=DEFAULT_GUIDANCE if self.guidance_scale is None else self.guidance_scale,
+            average_samples=self.average_samples or 1,
         )
         if self.compat not in ("neural-gaffer", "default"):
             raise ConfigError(
@@ -168,6 +172,7 @@ class LoadedModel:
         source: the folder the weights were read from.
         suggested_steps: the denoising steps the model was evaluated with, if known.
         suggested_guidance: the guidance scale the model was evaluated with, if known.
+        suggested_average: the samples averaged per image it was evaluated with, if known.
     """
 
     model: NeuralGafferModel
@@ -175,6 +180,7 @@ class LoadedModel:
     source: Path
     suggested_steps: int | None = None
     suggested_guidance: float | None = None
+    suggested_average: int | None = None
 
 
 def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> LoadedModel:
@@ -212,7 +218,10 @@ def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> Loaded
 
 
 def sampling_for(
-    loaded: LoadedModel, num_inference_steps: int | None, guidance_scale: float | None
+    loaded: LoadedModel,
+    num_inference_steps: int | None,
+    guidance_scale: float | None,
+    average_samples: int | None = None,
 ) -> SamplingConfig:
     """DDIM settings: the given values, else the model's suggestion, else the paper's (50, 3).
 
@@ -228,7 +237,10 @@ def sampling_for(
         guidance_scale = (
             DEFAULT_GUIDANCE if loaded.suggested_guidance is None else loaded.suggested_guidance
         )
-    return SamplingConfig(num_inference_steps=steps, guidance_scale=guidance_scale)
+    average = average_samples or loaded.suggested_average or 1
+    return SamplingConfig(
+        num_inference_steps=steps, guidance_scale=guidance_scale, average_samples=average
+    )
 
 
 def _load_gaffer_tiny(flag: str) -> LoadedModel:
@@ -247,6 +259,7 @@ def _load_gaffer_tiny(flag: str) -> LoadedModel:
         source=path,
         suggested_steps=pretrained.GAFFER_TINY_STEPS,
         suggested_guidance=pretrained.GAFFER_TINY_GUIDANCE,
+        suggested_average=pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
     )
 
 
@@ -615,7 +628,9 @@ def run_demo(
     pipe = RelightPipeline(loaded.model, RuntimeConfig(device=config.device))
     t_loaded = time.perf_counter()
     size = loaded.model.config.resolution
-    sampling = sampling_for(loaded, config.num_inference_steps, config.guidance_scale)
+    sampling = sampling_for(
+        loaded, config.num_inference_steps, config.guidance_scale, config.average_samples
+    )
 
     example_root = (
         Path(config.example) if config.example is not None else pretrained.example_dataset_path()
@@ -827,6 +842,7 @@ def _settings(
         "scheduler": sampling.scheduler,
         "num_inference_steps": sampling.num_inference_steps,
         "guidance_scale": sampling.guidance_scale,
+        "average_samples": sampling.average_samples,
         "seed": config.seed,
         "batch_size": config.batch_size,
         "lighting_encoding": f"gaffer-envmap, compat={config.compat!r}",

@@ -615,6 +615,7 @@ def evaluate_dataset(
         "scheduler": s.scheduler,
         "num_inference_steps": s.num_inference_steps,
         "guidance_scale": s.guidance_scale,
+        "average_samples": s.average_samples,
         "latent_mode": s.latent_mode,
         "seed": config.seed,
         "batch_size": config.batch_size,

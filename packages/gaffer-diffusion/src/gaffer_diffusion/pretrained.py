@@ -22,6 +22,9 @@ GAFFER_TINY_STEPS = 20
 GAFFER_TINY_GUIDANCE = 1.0
 """Classifier-free guidance scale gaffer-tiny was evaluated with."""
 
+GAFFER_TINY_AVERAGE_SAMPLES = 1
+"""Samples averaged per output (`SamplingConfig.average_samples`) in gaffer-tiny's suggested setting."""
+
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
     "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
@@ -66,6 +69,7 @@ def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
 
 
 __all__ = [
+    "GAFFER_TINY_AVERAGE_SAMPLES",
     "GAFFER_TINY_GUIDANCE",
     "GAFFER_TINY_STEPS",
     "example_dataset_path",

@@ -12,6 +12,7 @@ from the same initial noise with float32 copies of the networks.
 """
 
 import copy
+import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -212,6 +213,8 @@ class RelightPipeline:
             enc = enc.repeat_interleave(num_images_per_condition)
         n = enc.batch_size
         gens = self._generators(n, generator, seeds)
+        if sampling.average_samples > 1:
+            return self._sample_mean(enc, sampling, gens, latents, callback)
         if latents is None:
             latents = self.initial_noise(n, generator=gens)
         elif tuple(latents.shape) != (n, 4, *enc.image_latents.shape[2:]):
@@ -246,6 +249,40 @@ class RelightPipeline:
             images = images.clone()
             images[bad] = img_fix
         return RelightOutput(images=images, latents=z_0, retried_in_fp32=tuple(bad))
+
+    def _sample_mean(
+        self,
+        enc: EncodedConditions,
+        sampling: SamplingConfig,
+        gens: torch.Generator | list[torch.Generator] | None,
+        latents: Tensor | None,
+        callback: StepCallback | None,
+    ) -> RelightOutput:
+        """`sampling.average_samples` = K samples per item in one batch, averaged per item."""
+        k, n = sampling.average_samples, enc.batch_size
+        h = self.model.config.latent_size
+        shape = (k, self.model.config.vae.latent_channels, h, h)
+        if latents is not None:
+            if tuple(latents.shape) != (n * k, *shape[1:]):
+                raise ConfigError(
+                    f"`latents` has shape {tuple(latents.shape)}; with `average_samples` {k} "
+                    f"expected {(n * k, *shape[1:])} (K noises per item, item-major)."
+                )
+            noise = latents
+        elif isinstance(gens, list):  # K noises in turn from each item's own generator
+            noise = torch.cat([torch.randn(shape, generator=g, device=g.device) for g in gens])
+        else:
+            noise = self.initial_noise(n * k, generator=gens)
+        out = self.sample(
+            enc.repeat_interleave(k),
+            dataclasses.replace(sampling, average_samples=1),
+            latents=noise.to(device=self.device, dtype=self.dtype),
+            callback=callback,
+        )
+        images = out.images.unflatten(0, (n, k)).mean(dim=1)
+        latents_mean = out.latents.unflatten(0, (n, k)).mean(dim=1)
+        retried = tuple(sorted({i // k for i in out.retried_in_fp32}))
+        return RelightOutput(images=images, latents=latents_mean, retried_in_fp32=retried)
 
     def __call__(
         self,
