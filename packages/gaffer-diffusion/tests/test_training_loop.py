@@ -249,3 +249,35 @@ def test_cli_train(tmp_path: Path, data_root: Path) -> None:
     assert main(["train", "--config", str(path), "--resume"]) == 0
     assert ckpt.read_state(ckpt.latest_checkpoint(tmp_path / "c" / "checkpoints")).step == 3
     assert main(["train", "--config", str(tmp_path / "missing.json")]) == 2
+
+
+def test_timestep_range_limits_the_training_timesteps(
+    tmp_path: Path, data_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from gaffer_diffusion.errors import ConfigError
+
+    seen: list[int] = []
+    original = loop_mod._Trainer.loss
+
+    def spy(self: Any, unet: Any, batch: Any, gen: torch.Generator) -> torch.Tensor:
+        forward = unet.forward
+
+        def record(sample: torch.Tensor, timestep: torch.Tensor, *a: Any, **k: Any) -> Any:
+            seen.extend(torch.as_tensor(timestep).flatten().tolist())
+            return forward(sample, timestep, *a, **k)
+
+        unet.forward = record
+        try:
+            return original(self, unet, batch, gen)
+        finally:
+            del unet.forward
+
+    monkeypatch.setattr(loop_mod._Trainer, "loss", spy)
+    train(
+        _config(tmp_path / "late", data_root, train={"max_steps": 3, "timestep_range": [990, 999]})
+    )
+    assert seen and all(990 <= t <= 999 for t in seen)
+    with pytest.raises(ConfigError, match=r"train\.timestep_range"):
+        _config(tmp_path / "bad", data_root, train={"timestep_range": [500, 100]})
+    with pytest.raises(ConfigError, match=r"train\.timestep_range"):
+        train(_config(tmp_path / "big", data_root, train={"timestep_range": [0, 1000]}))

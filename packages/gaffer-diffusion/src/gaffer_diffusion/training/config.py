@@ -200,6 +200,10 @@ class TrainLoopConfig:
         max_consecutive_nonfinite: stop with `TrainingDivergedError` (and a checkpoint of the last good
             weights) after this many consecutive skipped steps with NaN/Inf loss or gradients.
         allow_tf32: allow TF32 matmuls on Ampere+ GPUs.
+        timestep_range: training timesteps t ~ U{lo..hi} (paper: the whole schedule, [0, 999]). A
+            late range such as [900, 999] spends the training on the noisiest steps, the only ones a
+            one-step sampler from t = 999 uses (diffusers' training scripts call this a timestep
+            bias); the model then samples well in one or few steps and worse in many.
     """
 
     max_steps: int = 80_000
@@ -214,8 +218,15 @@ class TrainLoopConfig:
     ema_decay: float = 0.9999
     max_consecutive_nonfinite: int = 20
     allow_tf32: bool = True
+    timestep_range: tuple[int, int] = (0, 999)
 
     def __post_init__(self) -> None:
+        lo, hi = self.timestep_range
+        if not 0 <= lo <= hi:
+            raise ConfigError(
+                f"`train.timestep_range` is {list(self.timestep_range)}; expected [lo, hi] with "
+                "0 <= lo <= hi < the schedule's num_train_timesteps (1000)."
+            )
         if self.max_steps < 1 or self.batch_size < 1 or self.grad_accum < 1:
             raise ConfigError(
                 f"`train.max_steps` ({self.max_steps}), `train.batch_size` ({self.batch_size}) and "

@@ -160,6 +160,12 @@ class _Trainer:
         self.model = model
         self.device = accelerator.device
         self.scheduler = build_scheduler(model.config.scheduler)
+        n_train = int(self.scheduler.config.num_train_timesteps)
+        if config.train.timestep_range[1] >= n_train:
+            raise ConfigError(
+                f"`train.timestep_range` is {list(config.train.timestep_range)}; the model's schedule "
+                f"has {n_train} timesteps, so hi must be <= {n_train - 1}."
+            )
         self.alphas_cumprod = self.scheduler.alphas_cumprod.to(self.device)
         cuda = self.device.type == "cuda"
         mp = config.train.mixed_precision
@@ -209,9 +215,8 @@ class _Trainer:
             clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
         cond = torch.cat([image_lat, hdr_lat, ldr_lat], dim=1)  # [BT, 12, h, w]
         noise = torch.randn(z0.shape, generator=gen).to(dev)
-        timesteps = torch.randint(
-            0, self.scheduler.config.num_train_timesteps, (n,), generator=gen
-        ).to(dev)
+        lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up
+        timesteps = torch.randint(lo, hi + 1, (n,), generator=gen).to(dev)
         r = torch.rand(n, generator=gen).to(dev)
         drop_clip, drop_lat = cfg_dropout_masks(r, cfg.train.cfg_dropout_p)
         clip = clip * (~drop_clip).to(clip.dtype).view(n, 1, 1)
