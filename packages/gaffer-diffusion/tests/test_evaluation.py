@@ -41,7 +41,9 @@ def _write_envmaps(folder: Path) -> dict[str, Path]:
     return out
 
 
-def write_tiny_dataset(root: Path, envmaps: dict[str, Path], *, views: int = 2) -> Path:
+def write_tiny_dataset(
+    root: Path, envmaps: dict[str, Path], *, views: int = 2, duplicate_last: bool = False
+) -> Path:
     """A gaffer-data dataset with one object, `views` views x 3 lightings of flat-shaded PNGs.
 
     Written through gaffer-data's schema and manifest writer (no Blender): the images are a disc whose
@@ -75,13 +77,15 @@ def write_tiny_dataset(root: Path, envmaps: dict[str, Path], *, views: int = 2) 
         w2c.append(orbit_w2c_blender(az, el, 2.0).matrix)
         lit = []
         for li in range(3):
-            name = names[li % len(names)]
+            # duplicate_last: lighting 2 is drawn exactly as lighting 0 (a repeated draw)
+            same = duplicate_last and li == 2
+            name = names[0 if same else li % len(names)]
             ref = EnvmapRef(
                 name=name,
                 source=str(envmaps[name]),
                 source_sha256=sha256_file(envmaps[name]),
-                flip=li == 2,
-                yaw_step=li,
+                flip=li == 2 and not same,
+                yaw_step=0 if same else li,
                 num_steps=4,
             )
             rgba = np.zeros((RES, RES, 4), np.uint8)
@@ -268,6 +272,15 @@ def test_evaluate_dataset_scores_the_unrelit_input_baseline(dataset) -> None:
     doc = json.loads(on.to_json())
     assert doc["baseline_unrelit_input"]["items"][0]["name"] == pairs[0].name
     assert "Baseline, the unrelit input" in on.to_markdown()
+
+
+def test_targets_lit_exactly_as_the_input_are_left_out(tmp_path) -> None:
+    maps = _write_envmaps(tmp_path / "maps")
+    root = write_tiny_dataset(tmp_path / "dup", maps, duplicate_last=True)
+    pairs = dataset_pairs(root)
+    # per view: lighting 1 stays, lighting 2 (the input's own draw repeated) is not a relighting task
+    assert [p.target_lighting for p in pairs] == [1, 1]
+    assert len(dataset_pairs(write_tiny_dataset(tmp_path / "ok", maps))) == 4
 
 
 def test_combine_reports_means_over_all_items() -> None:

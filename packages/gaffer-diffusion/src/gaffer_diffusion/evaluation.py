@@ -364,6 +364,7 @@ def _render_pairs(
         lambda source, name: _resolve_envmap(source, name, root, dirs)
     )
     pairs: list[EvalPair] = []
+    skipped_same = 0
     for obj in gaffer_data.open_dataset(root).iter_objects():
         poses = obj.poses()
         for view in obj.views:
@@ -377,8 +378,14 @@ def _render_pairs(
                     _missing_input(obj.object_id, view.index, input_lighting, sorted(by_index))
                 input_png = obj.path(by_index[input_lighting].png)
                 input_tag = f"{input_lighting:03d}"
+            same = None if input_lighting == "area" else _lighting_key(by_index[input_lighting])
             for lit in view.lit:
                 if lit.lighting_index == input_lighting:
+                    continue
+                if _lighting_key(lit) == same:
+                    # the same map, mirror, turn and strength as the input: the render is the input
+                    # itself (a duplicate draw), not a relighting task, and its PSNR is infinite
+                    skipped_same += 1
                     continue
                 ref = lit.envmap
                 pairs.append(
@@ -401,7 +408,22 @@ def _render_pairs(
                     )
                 )
                 if limit is not None and len(pairs) >= limit:
-                    return pairs
+                    return _log_skipped(pairs, skipped_same)
+    return _log_skipped(pairs, skipped_same)
+
+
+def _lighting_key(lit: Any) -> tuple[object, ...]:
+    """What decides a render's lighting: the map (by content hash), mirror, turn and strength."""
+    ref = lit.envmap
+    return (ref.source_sha256 or ref.name, bool(ref.flip), int(ref.yaw_step), float(ref.strength))
+
+
+def _log_skipped(pairs: list[EvalPair], skipped: int) -> list[EvalPair]:
+    if skipped:
+        logger.info(
+            "left out %d target(s) lit exactly as their input (same map, mirror, turn and strength)",
+            skipped,
+        )
     return pairs
 
 
