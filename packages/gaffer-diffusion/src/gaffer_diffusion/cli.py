@@ -221,7 +221,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     p.add_argument(
-        "--steps", type=int, help="denoising steps (default: 50, the paper's; gaffer-tiny: 20)"
+        "--steps", type=int, help="denoising steps (default: 50, the paper's; gaffer-tiny: 1)"
     )
     p.add_argument(
         "--guidance", type=float, help="CFG scale (default: 3, the paper's; gaffer-tiny: 1)"

@@ -84,7 +84,7 @@ class DemoConfig:
             (`gaffer_diffusion.pretrained.example_dataset_path()`).
         input_lighting: which render of the view is the input ("auto": the area-light render when
             there is one, else lighting 0).
-        num_inference_steps: denoising steps; None: the model's suggestion (gaffer-tiny: 20), else 50.
+        num_inference_steps: denoising steps; None: the model's suggestion (gaffer-tiny: 1), else 50.
         guidance_scale: classifier-free guidance scale; None: the model's suggestion (gaffer-tiny: 1,
             no unconditional branch), else 3 (the paper's).
         average_samples: samples averaged per image (`SamplingConfig.average_samples`); None: the

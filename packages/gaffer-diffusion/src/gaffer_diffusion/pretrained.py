@@ -16,13 +16,13 @@ from pathlib import Path
 from gaffer_diffusion.errors import CheckpointNotFoundError
 from gaffer_diffusion.loading import MANIFEST_NAME, LoadResult, load_pretrained
 
-GAFFER_TINY_STEPS = 20
+GAFFER_TINY_STEPS = 1
 """DDIM steps gaffer-tiny was evaluated with (its model card's numbers); the suggested default."""
 
 GAFFER_TINY_GUIDANCE = 1.0
 """Classifier-free guidance scale gaffer-tiny was evaluated with."""
 
-GAFFER_TINY_AVERAGE_SAMPLES = 1
+GAFFER_TINY_AVERAGE_SAMPLES = 4
 """Samples averaged per output (`SamplingConfig.average_samples`) in gaffer-tiny's suggested setting."""
 
 _HOW = (
