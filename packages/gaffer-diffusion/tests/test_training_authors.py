@@ -16,7 +16,6 @@ from gaffer_diffusion.training import (
     DataConfig,
     DataError,
     RelightTrainDataset,
-    TrainConfig,
     batch_lighting,
     collate_items,
     encode_batch_lighting,
@@ -24,7 +23,11 @@ from gaffer_diffusion.training import (
     train,
 )
 from gaffer_diffusion.training.dataset import batch_lighting_of, load_image_on_white
-from gaffer_diffusion.training.testing import write_authors_release, write_synthetic_dataset
+from gaffer_diffusion.training.testing import (
+    tiny_train_config,
+    write_authors_release,
+    write_synthetic_dataset,
+)
 
 RES = 16  # model resolution of the dataset tests; the authors' maps are 24 px, the images 32 px
 
@@ -163,26 +166,7 @@ def test_bad_input_names_the_argument_and_the_fix(
         )
 
 
-def _config(out: Path, root: Path, **sections: dict[str, Any]) -> TrainConfig:
-    base: dict[str, Any] = {
-        "output_dir": str(out),
-        "model": {"init": "preset", "preset": "tiny", "resolution": 32},
-        "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
-        "optim": {"lr": 1e-3, "warmup_steps": 2},
-        "train": {
-            "max_steps": 4,
-            "batch_size": 2,
-            "mixed_precision": "no",
-            "gradient_checkpointing": False,
-            "ema_decay": 0.9,
-        },
-        "checkpoint": {"every_steps": 2, "keep": 2},
-        "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
-        "validation": {"every_steps": 0},
-    }
-    for k, v in sections.items():
-        base[k] = {**base.get(k, {}), **v} if isinstance(v, dict) else v
-    return TrainConfig.from_dict(base)
+_config = tiny_train_config
 
 
 def test_tiny_training_on_a_converted_split_validates_and_resumes(

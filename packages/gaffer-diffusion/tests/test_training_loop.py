@@ -15,14 +15,13 @@ pytest.importorskip("accelerate")
 
 from gaffer_diffusion.training import (
     ResumeError,
-    TrainConfig,
     TrainingDivergedError,
     load_checkpoint_model,
     train,
 )
 from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training import loop as loop_mod
-from gaffer_diffusion.training.testing import write_synthetic_dataset
+from gaffer_diffusion.training.testing import tiny_train_config, write_synthetic_dataset
 from gaffer_diffusion.training.tracking import read_log
 
 
@@ -42,26 +41,7 @@ def data_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
 
 
-def _config(out: Path, root: Path, **sections: dict[str, Any]) -> TrainConfig:
-    base: dict[str, Any] = {
-        "output_dir": str(out),
-        "model": {"init": "preset", "preset": "tiny", "resolution": 32},
-        "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
-        "optim": {"lr": 1e-3, "warmup_steps": 2},
-        "train": {
-            "max_steps": 4,
-            "batch_size": 2,
-            "mixed_precision": "no",
-            "gradient_checkpointing": False,
-            "ema_decay": 0.9,
-        },
-        "checkpoint": {"every_steps": 2, "keep": 2},
-        "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
-        "validation": {"every_steps": 0},
-    }
-    for k, v in sections.items():
-        base[k] = {**base.get(k, {}), **v} if isinstance(v, dict) else v
-    return TrainConfig.from_dict(base)
+_config = tiny_train_config
 
 
 def test_resume_gives_the_same_loss_curve(tmp_path: Path, data_root: Path) -> None:

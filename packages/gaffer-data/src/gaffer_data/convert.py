@@ -261,7 +261,8 @@ def _convert_object(obj: Path, dst: Path, options: ConvertOptions) -> tuple[set[
         views.append({"index": v, "row": row, "lit": entries, "area_png": area_rel})
     if len(hdr_folders) > 1:
         raise InputError(f"`{obj}` mixes {sorted(hdr_folders)}; keep one HDR folder per object.")
-    assert first_shape is not None  # internal: `lit` is not empty
+    if first_shape is None:  # internal: `lit` is never empty here
+        raise RuntimeError(f"internal error: no lit image read for `{obj}`")
     height, width = first_shape[0], first_shape[1]
     intrinsics = Intrinsics(
         width=width,

@@ -79,7 +79,8 @@ def extract_isolated(
         return _Worker(process=process, conn=parent)
 
     def replace(worker: _Worker, error: str) -> None:
-        assert worker.job is not None  # internal: only busy workers are replaced
+        if worker.job is None:  # internal: only busy workers are replaced
+            raise RuntimeError("internal error: replacing an idle filter worker")
         oid, path = worker.job
         logger.warning("%s: %s", oid, error)
         results[oid] = _failed(oid, path, error)

@@ -392,7 +392,8 @@ def nerf_transforms(plan: ObjectPlan, split: str) -> dict[str, object]:
     for view in plan.views:
         if view.split != split:
             continue
-        assert view.lit or view.area is not None  # internal: RenderConfig needs one of them
+        if not view.lit and view.area is None:  # internal: RenderConfig needs one of them
+            raise RuntimeError(f"internal error: view {view.index} has no render")
         c2w = np.eye(4)
         c2w[:3] = np.linalg.inv(np.vstack([poses.w2c_blender[view.index], [0, 0, 0, 1]]))[:3]
         frames.append(

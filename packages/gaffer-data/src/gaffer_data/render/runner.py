@@ -265,7 +265,8 @@ def _run_worker(
         if options.timeout_s is not None:
             timer = threading.Timer(options.timeout_s, proc.kill)
             timer.start()
-        assert proc.stdout is not None  # internal: we asked for a pipe
+        if proc.stdout is None:  # internal: we asked for a pipe
+            raise RuntimeError("internal error: the render worker has no stdout pipe")
         for line in proc.stdout:
             if not line.startswith(EVENT_PREFIX):
                 continue

@@ -168,7 +168,8 @@ def _read_exr_channels(path: Path) -> dict[str, np.ndarray]:
 def _split_passes(multilayer: Path, root: Path, view: ViewRecord) -> None:
     """Write normal, albedo, depth (and alpha) payloads from the area render's multilayer EXR."""
     area = view.area
-    assert area is not None  # internal invariant: only called for views with an area render
+    if area is None:  # internal: only called for views with an area render
+        raise RuntimeError(f"internal error: view {view.index} has no area render")
     ch = _read_exr_channels(multilayer)
 
     def pick(layer: str, names: str) -> dict[str, np.ndarray]:

@@ -12,6 +12,7 @@ transparent film. Manifests are written with gaffer-data's public schema and ser
 import dataclasses
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PIL import Image
@@ -31,6 +32,9 @@ from gaffer_data.dataset import (
     ViewRecord,
 )
 from gaffer_data.dataset.manifest import object_manifest_json, producer, utc_now
+
+if TYPE_CHECKING:
+    from gaffer_diffusion.training.config import TrainConfig
 
 
 def write_envmaps(
@@ -246,3 +250,30 @@ def write_authors_release(
                     path.parent.mkdir(parents=True, exist_ok=True)
                     Image.fromarray((arr * 255).round().astype(np.uint8), "RGB").save(path)
     return root
+
+
+def tiny_train_config(out: Path, root: Path, **sections: dict[str, Any]) -> "TrainConfig":
+    """A seconds-long CPU training config: the `tiny` preset at 32 px on `root`, 4 steps of batch 2,
+    checkpoints every 2 steps, no validation. `sections` override keys per section, e.g.
+    `train={"max_steps": 6}`."""
+    from gaffer_diffusion.training.config import TrainConfig
+
+    base: dict[str, Any] = {
+        "output_dir": str(out),
+        "model": {"init": "preset", "preset": "tiny", "resolution": 32},
+        "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
+        "optim": {"lr": 1e-3, "warmup_steps": 2},
+        "train": {
+            "max_steps": 4,
+            "batch_size": 2,
+            "mixed_precision": "no",
+            "gradient_checkpointing": False,
+            "ema_decay": 0.9,
+        },
+        "checkpoint": {"every_steps": 2, "keep": 2},
+        "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
+        "validation": {"every_steps": 0},
+    }
+    for k, v in sections.items():
+        base[k] = {**base.get(k, {}), **v} if isinstance(v, dict) else v
+    return TrainConfig.from_dict(base)
