@@ -1,4 +1,5 @@
-"""JSON Schemas of manifest.json / dataset.json validate what the code really writes (jsonschema)."""
+"""JSON Schemas of manifest.json / dataset.json (rendered and converted) validate what the code really
+writes (jsonschema)."""
 
 import copy
 import dataclasses
@@ -6,6 +7,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("jsonschema")  # a dependency of ray (the `ray` and `all` extras)
@@ -14,7 +16,18 @@ import jsonschema
 
 from gaffer_data.cli import main
 from gaffer_data.config import MultiviewConfig, multiview_render_config
+from gaffer_data.convert import convert_authors
+from gaffer_data.dataset.authors import (
+    AUTHORS_DATASET_SCHEMA,
+    AUTHORS_DATASET_SCHEMA_VERSION,
+    AUTHORS_OBJECT_SCHEMA,
+    AUTHORS_OBJECT_SCHEMA_VERSION,
+    AuthorsLitImage,
+    AuthorsView,
+)
 from gaffer_data.dataset.json_schema import (
+    authors_dataset_manifest_schema,
+    authors_object_manifest_schema,
     dataset_manifest_schema,
     object_manifest_schema,
     schema_filename,
@@ -31,6 +44,7 @@ from gaffer_data.dataset.schema import (
 )
 from gaffer_data.render.plan import PoolEntry, plan_for
 from gaffer_data.testing import tiny_config, write_cube_obj, write_uniform_envmaps
+from gaffer_envmap.poses import orbit_w2c_blender
 
 
 def _errors(schema: dict, doc: dict) -> list[str]:
@@ -40,9 +54,12 @@ def _errors(schema: dict, doc: dict) -> list[str]:
 
 def test_cli_writes_valid_versioned_schemas(tmp_path: Path) -> None:
     assert main(["schema", "--out", str(tmp_path / "schemas")]) == 0
+    assert len(list((tmp_path / "schemas").iterdir())) == 4
     for schema, version in (
         (OBJECT_SCHEMA, OBJECT_SCHEMA_VERSION),
         (DATASET_SCHEMA, DATASET_SCHEMA_VERSION),
+        (AUTHORS_OBJECT_SCHEMA, AUTHORS_OBJECT_SCHEMA_VERSION),
+        (AUTHORS_DATASET_SCHEMA, AUTHORS_DATASET_SCHEMA_VERSION),
     ):
         doc = json.loads((tmp_path / "schemas" / schema_filename(schema, version)).read_text())
         jsonschema.Draft202012Validator.check_schema(doc)
@@ -51,6 +68,53 @@ def test_cli_writes_valid_versioned_schemas(tmp_path: Path) -> None:
     defs = object_manifest_schema()["$defs"]
     for cls in (ViewRecord, FileRecord, Normalization):
         assert set(defs[cls.__name__]["properties"]) == {f.name for f in dataclasses.fields(cls)}
+    defs = authors_object_manifest_schema()["$defs"]
+    for cls in (AuthorsView, AuthorsLitImage, FileRecord):
+        assert set(defs[cls.__name__]["properties"]) == {f.name for f in dataclasses.fields(cls)}
+
+
+def _png(path: Path, value: int, size: int) -> None:
+    from PIL import Image
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.full((size, size, 3), value, np.uint8), mode="RGB").save(path)
+
+
+def test_converted_authors_manifests_validate_and_defects_do_not(tmp_path: Path) -> None:
+    # A release split with object "a" (two views, two lightings, maps inside the object folder) and
+    # "c", whose image lacks its lighting maps, so dataset.json records a skipped object too.
+    split = tmp_path / "val_unseen"
+    for name in ("a", "c"):
+        for v in range(2):
+            (split / name).mkdir(parents=True, exist_ok=True)
+            np.save(split / name / f"{v:03d}_RT.npy", orbit_w2c_blender(90.0 * v, 20.0, 2.0).matrix)
+            _png(split / name / f"random_lighting_{v:03d}.png", 200, 8)
+            for li, env in enumerate(("cannon_2k_225", "sky_1k_000")):
+                image = f"{v:03d}_{li:03d}_{env}.png"
+                _png(split / name / image, 10 * v + li, 8)
+                if name == "a":
+                    _png(split / name / "LDR" / image, 100, 16)
+                    _png(split / name / "HDR_rescaled" / image, 150, 16)
+    out = tmp_path / "converted"
+    summary = convert_authors(split, out)
+    assert summary.converted == ("a",) and [f.object_id for f in summary.failed] == ["c"]
+    manifest = json.loads((out / "objects" / "a" / "manifest.json").read_text())
+    dataset = json.loads((out / "dataset.json").read_text())
+    schema = authors_object_manifest_schema()
+    assert _errors(schema, manifest) == []
+    assert _errors(authors_dataset_manifest_schema(), dataset) == []
+    assert dataset["skipped"][0]["object_id"] == "c"
+    bad = copy.deepcopy(manifest)
+    bad["hdr_folder"] = "HDR_raw"
+    bad["views"][0]["lit"][0]["lighting_index"] = "000"
+    bad["views"][1]["area_png"] = 3
+    bad["files"][0]["sha256"] = "not-a-digest"
+    del bad["intrinsics"]["fx"]
+    bad["schema_version"] = "2.0"
+    assert len(_errors(schema, bad)) == 6
+    # Neither confusable with the rendered manifests nor with each other.
+    assert _errors(object_manifest_schema(), manifest) != []
+    assert _errors(schema, dataset) != []
 
 
 def test_a_multiview_manifest_body_validates_and_defects_do_not() -> None:

@@ -285,7 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.set_defaults(func=_convert_authors)
 
     s = sub.add_parser(
-        "schema", help="write JSON Schemas of manifest.json and dataset.json (draft 2020-12)"
+        "schema",
+        help="write JSON Schemas (draft 2020-12) of the rendered and the converted (convert-authors) "
+        "manifest.json and dataset.json",
     )
     s.add_argument("--out", required=True, type=Path, help="folder for the *.schema.json files")
     s.set_defaults(func=_schema)

@@ -1,11 +1,13 @@
 """JSON Schema (draft 2020-12) of the versioned manifests, generated from the frozen dataclasses.
 
 `object_manifest_schema()` describes an object's `manifest.json` (`gaffer.rendered_object`),
-`dataset_manifest_schema()` a dataset's `dataset.json` (`gaffer.render_dataset`); `write_schemas`
-writes both (`gaffer-data schema --out DIR`) so other languages and tools can validate manifests.
+`dataset_manifest_schema()` a dataset's `dataset.json` (`gaffer.render_dataset`), and
+`authors_object_manifest_schema()` / `authors_dataset_manifest_schema()` the same two files written by
+`gaffer-data convert-authors` (`gaffer.authors_object`, `gaffer.authors_dataset`); `write_schemas`
+writes all four (`gaffer-data schema --out DIR`) so other languages and tools can validate manifests.
 
-Generated from the same dataclasses the writer serialises with `dataclasses.asdict`, so the schemas
-cannot drift from the code. They encode the reader's version rule: any `1.x` version validates, a
+Generated from the same dataclasses the writer serialises with `dataclasses.asdict` (for the converted
+layout, the dataclasses its reader builds from each entry), so the schemas cannot drift from the code. They encode the reader's version rule: any `1.x` version validates, a
 dataclass field is required only when it has no default (fields with defaults were added in later
 MINOR versions or are filled in by the reader), top-level fields when every 1.x writer wrote them and
 the code reads them, and unknown fields are allowed (newer MINOR versions add some).
@@ -20,6 +22,14 @@ from typing import Any
 
 from gaffer_data._atomic import atomic_write_json
 from gaffer_data.config import RenderConfig
+from gaffer_data.dataset.authors import (
+    AUTHORS_DATASET_SCHEMA,
+    AUTHORS_DATASET_SCHEMA_VERSION,
+    AUTHORS_OBJECT_SCHEMA,
+    AUTHORS_OBJECT_SCHEMA_VERSION,
+    AuthorsView,
+    HdrFolder,
+)
 from gaffer_data.dataset.schema import (
     DATASET_SCHEMA,
     DATASET_SCHEMA_VERSION,
@@ -160,17 +170,69 @@ def dataset_manifest_schema() -> dict[str, Any]:
     return _document(meta, props, ["config", "objects"], b)
 
 
+def authors_object_manifest_schema() -> dict[str, Any]:
+    """JSON Schema of a converted object's `manifest.json` (`gaffer.authors_object`).
+
+    Views are described by `AuthorsView` / `AuthorsLitImage`, the records `read_authors_object`
+    builds from each entry; every top-level field but `created_utc` is required, as the reader needs
+    it.
+    """
+    b = _Builder()
+    meta, props = _header(
+        AUTHORS_OBJECT_SCHEMA,
+        AUTHORS_OBJECT_SCHEMA_VERSION,
+        "gaffer-data converted object manifest",
+    )
+    props.update(
+        producer=b.of(Producer),
+        object_id={"type": "string"},
+        source={"type": "string"},
+        hdr_folder=b.of(HdrFolder),
+        intrinsics=b.of(Intrinsics),
+        views={"type": "array", "items": b.of(AuthorsView)},
+        files={"type": "array", "items": b.of(FileRecord)},
+    )
+    required = [k for k in props if k not in ("schema", "schema_version", "created_utc")]
+    return _document(meta, props, required, b)
+
+
+def authors_dataset_manifest_schema() -> dict[str, Any]:
+    """JSON Schema of a converted dataset's `dataset.json` (`gaffer.authors_dataset`)."""
+    b = _Builder()
+    meta, props = _header(
+        AUTHORS_DATASET_SCHEMA,
+        AUTHORS_DATASET_SCHEMA_VERSION,
+        "gaffer-data converted dataset manifest",
+    )
+    props.update(
+        producer=b.of(Producer),
+        source={"type": "string"},
+        lighting={"type": ["string", "null"]},
+        objects={"type": "array", "items": {"type": "string"}},
+        skipped={"type": "array", "items": b.of(FailureRecord)},
+        envmap_names={"type": "array", "items": {"type": "string"}},
+    )
+    return _document(meta, props, ["source"], b)
+
+
 def schema_filename(schema: str, version: str) -> str:
     """`<schema>-<version>.schema.json`, e.g. `gaffer.rendered_object-1.1.schema.json`."""
     return f"{schema}-{version}.schema.json"
 
 
 def write_schemas(out: str | Path) -> tuple[Path, ...]:
-    """Write the object and dataset manifest schemas into folder `out` (created); returns the files."""
+    """Write the rendered and converted manifest schemas into folder `out` (created); returns the
+    files."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    for doc in (object_manifest_schema(), dataset_manifest_schema()):
+    docs = (
+        object_manifest_schema(),
+        dataset_manifest_schema(),
+        authors_object_manifest_schema(),
+        authors_dataset_manifest_schema(),
+    )
+    for doc in docs:
         json.dumps(doc, allow_nan=False)  # fail before writing if something is not JSON
         paths.append(atomic_write_json(out / doc["$id"], doc))
     return tuple(paths)
