@@ -1,4 +1,5 @@
-"""The filter under hostile inputs: per-object timeouts, killed workers, header face-count pre-checks."""
+"""The filter under hostile inputs: per-object timeouts, killed workers, memory caps, header face-count
+pre-checks."""
 
 import json
 import struct
@@ -14,8 +15,9 @@ from gaffer_data.cli import main
 from gaffer_data.errors import ConfigError
 from gaffer_data.filter import extract_features, filter_objects
 from gaffer_data.filter import run as run_mod
+from gaffer_data.filter.memory_cap import memory_cap_supported
 from gaffer_data.filter.precheck import declared_face_count
-from gaffer_data.testing import hostile_extract_features, write_cube_obj
+from gaffer_data.testing import hostile_extract_features, write_cube_obj, write_uv_sphere_obj
 
 
 def test_a_hanging_or_killed_object_is_rejected_and_the_run_goes_on(
@@ -48,6 +50,40 @@ def test_timeout_must_be_positive(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="workers"):
         filter_objects(tmp_path / "src", tmp_path / "m.jsonl", workers=0)
     assert main(["filter", str(tmp_path / "src"), "--out", "m.jsonl", "--timeout", "-2"]) == 2
+
+
+@pytest.mark.skipif(not memory_cap_supported(), reason="memory caps need Linux (RLIMIT_AS)")
+def test_an_object_over_the_memory_cap_is_rejected_and_the_run_goes_on(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # One thread per library in the workers (they inherit this), so thread stacks and per-thread
+    # malloc arenas do not eat into the small cap on many-core machines.
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.setenv(var, "1")
+    src = tmp_path / "src"
+    write_cube_obj(src / "a_cube.obj")
+    # 160k triangles: loading needs ~100 MB more; a cube fits in 16 MB once a worker is warm.
+    write_uv_sphere_obj(src / "b_dense.obj", rings=200, segments=400)
+    write_cube_obj(src / "c_cube.obj")
+    out = tmp_path / "m.jsonl"
+    assert main(["filter", str(src), "--out", str(out), "--max-worker-memory-mb", "32"]) == 0
+    rows = {r["object_id"]: r for r in map(json.loads, out.read_text().splitlines())}
+    assert rows["b_dense"]["decision"] == "reject"
+    assert rows["b_dense"]["reasons"] == ["worker exceeded memory cap of 32 MB"]
+    assert rows["b_dense"]["features"]["file_size_mb"] > 1.0
+    assert rows["a_cube"]["decision"] == rows["c_cube"]["decision"] == "accept"  # a fresh worker
+    # Uncapped, the same mesh passes: the cap, not the mesh, rejected it.
+    summary = filter_objects(src, out, max_worker_memory_mb=0)
+    assert (summary.total, summary.accepted) == (3, 3)
+
+
+def test_memory_cap_must_be_a_non_negative_integer(tmp_path: Path) -> None:
+    write_cube_obj(tmp_path / "src" / "cube.obj")
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ConfigError, match=r"max_worker_memory_mb.*--max-worker-memory-mb"):
+            filter_objects(tmp_path / "src", tmp_path / "m.jsonl", max_worker_memory_mb=bad)  # type: ignore[arg-type]
+    argv = ["filter", str(tmp_path / "src"), "--out", "m.jsonl", "--max-worker-memory-mb", "-5"]
+    assert main(argv) == 2
 
 
 def _glb_declaring(path: Path, faces: int) -> Path:

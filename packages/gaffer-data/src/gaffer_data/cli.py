@@ -116,6 +116,7 @@ def _filter(args: argparse.Namespace) -> int:
         classifier_path=args.classifier,
         workers=args.workers,
         timeout_s=args.timeout if args.timeout != 0 else None,
+        max_worker_memory_mb=args.max_worker_memory_mb,
     )
     print(f"accepted {summary.accepted} / {summary.total} objects -> {args.out}")
     return 0
@@ -215,6 +216,8 @@ def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `gaffer-data` (exposed for docs and tests)."""
+    from gaffer_data.filter.memory_cap import DEFAULT_MAX_WORKER_MEMORY_MB
+
     parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -257,6 +260,14 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=300.0,
         help="seconds per object before it is rejected as 'timeout after N s' (0: no limit)",
+    )
+    f.add_argument(
+        "--max-worker-memory-mb",
+        type=int,
+        default=DEFAULT_MAX_WORKER_MEMORY_MB,
+        help="MiB of memory one object may add to its worker before it is rejected as 'worker "
+        f"exceeded memory cap of N MB' (Linux RLIMIT_AS; default {DEFAULT_MAX_WORKER_MEMORY_MB}; "
+        "0: no cap)",
     )
     f.set_defaults(func=_filter)
 

@@ -237,7 +237,7 @@ def warm_up() -> None:
 def extract_features(
     object_id: str, path: str | Path, *, max_file_mb: float = 512.0, max_faces: int = 5_000_000
 ) -> ObjectFeatures:
-    """Compute the features of one object file; never raises for a bad file.
+    """Compute the features of one object file; never raises for a bad file, except `MemoryError`.
 
     Args:
         object_id: the object's id.
@@ -248,6 +248,9 @@ def extract_features(
 
     Returns:
         The features; `error` is set when they could not all be computed.
+
+    Raises:
+        MemoryError: an allocation failed (under a worker's memory cap, the worker reports it).
     """
     path = Path(path)
     base: dict[str, Any] = {"object_id": object_id, "path": str(path)}
@@ -296,5 +299,7 @@ def extract_features(
         if gltf is not None:
             base.update(_material_features(gltf))
         return ObjectFeatures(**base)
+    except MemoryError:
+        raise  # the isolating worker turns it into "worker exceeded memory cap of N MB"
     except Exception as exc:  # hostile input: anything a loader throws becomes a rejection reason
         return ObjectFeatures(**base, error=f"{type(exc).__name__}: {str(exc)[:300]}")

@@ -2,13 +2,17 @@
 
 Each worker serves one object at a time over a pipe. An object that outlives `timeout_s` gets its
 worker killed and is recorded as rejected with "timeout after N s"; one that kills its worker (a
-segfault in a native loader, the OOM killer) is recorded as crashed. Either way a fresh worker takes
-the next object, so one hostile file never stalls or ends the run. The clock starts when the worker
-takes the object, after its start-up imports.
+segfault in a native loader, the OOM killer) is recorded as crashed, and one that allocates past the
+worker's memory cap (`gaffer_data.filter.memory_cap`) as "worker exceeded memory cap of N MB". Either
+way a fresh worker takes the next object, so one hostile file never stalls or ends the run. The clock
+starts when the worker takes the object, after its start-up imports.
 """
 
 import logging
+import math
 import multiprocessing
+import os
+import signal
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -19,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from gaffer_data.filter.features import ObjectFeatures, warm_up
+from gaffer_data.filter.memory_cap import MEMORY_EXIT_CODE, apply_memory_cap
 
 logger = logging.getLogger(__name__)
 
@@ -26,11 +31,18 @@ Extractor = Callable[..., ObjectFeatures]
 """`extract_features` or a stand-in with its signature; must be importable (spawned workers)."""
 
 
-def _serve(conn: Connection, extract: Extractor, options: dict[str, Any]) -> None:
+def _serve(
+    conn: Connection, extract: Extractor, options: dict[str, Any], memory_cap_mb: int
+) -> None:
     warm_up()
-    while (job := conn.recv()) is not None:
-        conn.send("started")
-        conn.send(extract(job[0], job[1], **options))
+    apply_memory_cap(memory_cap_mb)  # after the imports: the cap is for the objects
+    try:
+        while (job := conn.recv()) is not None:
+            conn.send("started")
+            conn.send(extract(job[0], job[1], **options))
+    except MemoryError:
+        # Exit at once: reporting could itself fail for memory, and a fresh worker starts clean.
+        os._exit(MEMORY_EXIT_CODE)
 
 
 @dataclass
@@ -43,10 +55,10 @@ class _Worker:
 
 def _failed(oid: str, path: Path, error: str) -> ObjectFeatures:
     try:
-        size: dict[str, float] = {"file_size_mb": path.stat().st_size / 2**20}
+        size_mb = path.stat().st_size / 2**20
     except OSError:
-        size = {}
-    return ObjectFeatures(object_id=oid, path=str(path), error=error, **size)
+        size_mb = math.nan
+    return ObjectFeatures(object_id=oid, path=str(path), error=error, file_size_mb=size_mb)
 
 
 def extract_isolated(
@@ -56,8 +68,9 @@ def extract_isolated(
     workers: int,
     timeout_s: float | None,
     options: dict[str, Any],
+    memory_cap_mb: int = 0,
 ) -> dict[str, ObjectFeatures]:
-    """Features of every `(object_id, path)`; timeouts and crashes become `error`s.
+    """Features of every `(object_id, path)`; timeouts, crashes and memory overruns become `error`s.
 
     Args:
         pairs: the objects.
@@ -65,6 +78,8 @@ def extract_isolated(
         workers: worker processes.
         timeout_s: seconds one object may take, or None for no limit.
         options: keyword arguments of `extract`.
+        memory_cap_mb: MiB of address space one object may add to its worker (`RLIMIT_AS`, Linux;
+            see `gaffer_data.filter.memory_cap`); 0 for no cap.
     """
     ctx = multiprocessing.get_context("spawn")
     pending = deque(pairs)
@@ -73,7 +88,9 @@ def extract_isolated(
 
     def spawn() -> _Worker:
         parent, child = ctx.Pipe()
-        process = ctx.Process(target=_serve, args=(child, extract, options), daemon=True)
+        process = ctx.Process(
+            target=_serve, args=(child, extract, options, memory_cap_mb), daemon=True
+        )
         process.start()
         child.close()
         return _Worker(process=process, conn=parent)
@@ -110,7 +127,7 @@ def extract_isolated(
             wait_s = max(0.0, min(deadlines) - now) if deadlines else None
             wait([w.conn for w in pool] + [w.process.sentinel for w in pool], timeout=wait_s)
             for worker in list(pool):
-                _step(worker, results, replace, timeout_s)
+                _step(worker, results, replace, timeout_s, memory_cap_mb)
     finally:
         for worker in pool:
             if worker.job is None and worker.process.is_alive():
@@ -130,6 +147,7 @@ def _step(
     results: dict[str, ObjectFeatures],
     replace: Callable[[_Worker, str], None],
     timeout_s: float | None,
+    memory_cap_mb: int,
 ) -> None:
     """Advance one worker: take its messages, or replace it when it died or ran out of time."""
     try:
@@ -145,11 +163,22 @@ def _step(
     if worker.job is None:
         return
     if not worker.process.is_alive():
-        code = worker.process.exitcode
-        replace(worker, f"feature extraction crashed the process (exit code {code})")
+        replace(worker, _death_reason(worker.process.exitcode, memory_cap_mb))
     elif (
         timeout_s is not None
         and worker.started is not None
         and time.monotonic() - worker.started >= timeout_s
     ):
         replace(worker, f"timeout after {timeout_s:g} s")
+
+
+def _death_reason(code: int | None, memory_cap_mb: int) -> str:
+    if code == MEMORY_EXIT_CODE:
+        if memory_cap_mb > 0:
+            return f"worker exceeded memory cap of {memory_cap_mb} MB"
+        return "worker ran out of memory (no cap set)"
+    reason = f"feature extraction crashed the process (exit code {code})"
+    # Native code (C++ std::bad_alloc) aborts instead of raising when an allocation fails.
+    if memory_cap_mb > 0 and code == -signal.SIGABRT:
+        reason += f", possibly at the memory cap of {memory_cap_mb} MB"
+    return reason

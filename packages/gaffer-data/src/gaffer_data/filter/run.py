@@ -1,12 +1,13 @@
 """`gaffer-data filter`: features -> rules -> classifier score -> decision, one JSONL line per object.
 
 Feature extraction runs in spawned worker processes (`gaffer_data.filter.isolate`), each object under
-a time limit, so a loader that hangs or crashes the interpreter (a segfault in a native mesh library)
-costs one object, recorded as rejected with its reason, never the run.
+a time limit and a memory cap, so a loader that hangs, crashes the interpreter (a segfault in a native
+mesh library) or swallows memory costs one object, recorded as rejected with its reason, never the run.
 """
 
 import dataclasses
 import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,8 +17,11 @@ from gaffer_data.errors import ConfigError
 from gaffer_data.filter.classifier import QualityClassifier
 from gaffer_data.filter.features import extract_features
 from gaffer_data.filter.isolate import extract_isolated
+from gaffer_data.filter.memory_cap import DEFAULT_MAX_WORKER_MEMORY_MB, memory_cap_supported
 from gaffer_data.filter.rules import FilterRules
 from gaffer_data.recipes import scan_objects
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_TIMEOUT_S = 300.0
 """Seconds one object's feature extraction may take (a 2M-face GLB takes well under a minute)."""
@@ -40,6 +44,7 @@ def filter_objects(
     threshold: float = 0.5,
     workers: int = 1,
     timeout_s: float | None = DEFAULT_TIMEOUT_S,
+    max_worker_memory_mb: int = DEFAULT_MAX_WORKER_MEMORY_MB,
 ) -> FilterSummary:
     """Filter a folder of objects and write the JSONL manifest.
 
@@ -52,15 +57,23 @@ def filter_objects(
         workers: feature-extraction processes.
         timeout_s: seconds one object's features may take before it is rejected with
             "timeout after N s" (its worker is killed and replaced); None for no limit.
+        max_worker_memory_mb: MiB of address space one object may add to its worker before it is
+            rejected with "worker exceeded memory cap of N MB" (Linux); 0 for no cap.
 
     Returns:
         Counts of objects and accepted objects.
 
     Raises:
-        ConfigError: `workers` < 1 or `timeout_s` not a positive number.
+        ConfigError: `workers` < 1, `timeout_s` not a positive number or `max_worker_memory_mb` < 0.
     """
     if not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"`workers`={workers!r} must be an integer >= 1 (`--workers`).")
+    cap = max_worker_memory_mb
+    if isinstance(cap, bool) or not isinstance(cap, int) or cap < 0:
+        raise ConfigError(
+            f"`max_worker_memory_mb`={cap!r} must be an integer >= 0 (`--max-worker-memory-mb`); "
+            "0 disables the cap."
+        )
     if timeout_s is not None and not (isinstance(timeout_s, int | float) and timeout_s > 0):
         raise ConfigError(
             f"`timeout_s`={timeout_s!r} must be a number of seconds > 0 (`--timeout`), "
@@ -68,13 +81,21 @@ def filter_objects(
         )
     if timeout_s is not None and not math.isfinite(timeout_s):
         timeout_s = None
+    if cap > 0 and not memory_cap_supported():
+        logger.warning("`--max-worker-memory-mb` needs Linux: filter workers run without a cap")
+        cap = 0
     rules = FilterRules.from_json(rules_path) if rules_path is not None else FilterRules()
     classifier = QualityClassifier.load(classifier_path) if classifier_path is not None else None
     pairs = scan_objects(src)
     options = {"max_file_mb": rules.max_file_mb, "max_faces": rules.max_faces}
     # Looked up at call time so tests can stand in a hostile extractor (it must be importable).
     features = extract_isolated(
-        pairs, extract_features, workers=workers, timeout_s=timeout_s, options=options
+        pairs,
+        extract_features,
+        workers=workers,
+        timeout_s=timeout_s,
+        options=options,
+        memory_cap_mb=cap,
     )
     lines, accepted = [], 0
     for oid, path in pairs:
