@@ -116,6 +116,7 @@ def _filter(args: argparse.Namespace) -> int:
         classifier_path=args.classifier,
         workers=args.workers,
         timeout_s=args.timeout if args.timeout != 0 else None,
+        annotations_path=args.annotations,
         max_worker_memory_mb=args.max_worker_memory_mb,
     )
     print(f"accepted {summary.accepted} / {summary.total} objects -> {args.out}")
@@ -250,7 +251,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.set_defaults(func=_recipe)
 
     f = sub.add_parser("filter", help="compute features, apply rules and a classifier")
-    f.add_argument("src", type=Path, help="mesh folder")
+    f.add_argument(
+        "src", type=Path, help="mesh folder, or an Objaverse cache (glbs/<group>/<uid>.glb)"
+    )
     f.add_argument("--out", required=True, type=Path, help="output .jsonl manifest")
     f.add_argument("--rules", type=Path, default=None, help="rules JSON (see FilterRules)")
     f.add_argument("--classifier", type=Path, default=None, help="trained classifier folder")
@@ -260,6 +263,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=300.0,
         help="seconds per object before it is rejected as 'timeout after N s' (0: no limit)",
+    )
+    f.add_argument(
+        "--annotations",
+        type=Path,
+        default=None,
+        help="Objaverse annotation JSON[.gz] (uid -> annotation; default: the cache's own "
+        "annotations.json[.gz] or metadata/*.json.gz)",
     )
     f.add_argument(
         "--max-worker-memory-mb",

@@ -63,12 +63,16 @@ def read_labels(path: str | Path) -> dict[str, int]:
 
 
 def read_feature_records(path: str | Path) -> dict[str, ObjectFeatures]:
-    """Features per object id from a `gaffer-data filter` JSONL manifest."""
+    """Features per object id from a `gaffer-data filter` JSONL manifest.
+
+    Objects rejected by their annotation before loading have no features and are left out.
+    """
     out = {}
     for line in Path(path).read_text(encoding="utf-8").splitlines():
         if line.strip():
             row = json.loads(line)
-            out[row["object_id"]] = ObjectFeatures.from_json(row["features"])
+            if row.get("features") is not None:
+                out[row["object_id"]] = ObjectFeatures.from_json(row["features"])
     return out
 
 

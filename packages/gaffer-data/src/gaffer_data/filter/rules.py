@@ -1,4 +1,8 @@
-"""Typed filtering rules (paper §3.1: bounding boxes, BRDF attributes, file size), each with a reason."""
+"""Typed filtering rules (paper §3.1: bounding boxes, BRDF attributes, file size), each with a reason.
+
+Geometry rules read `ObjectFeatures`; annotation rules (licence, tags, categories, declared faces,
+animation) read an Objaverse annotation and run first, so an object they reject is never loaded.
+"""
 
 import dataclasses
 import json
@@ -8,6 +12,9 @@ from pathlib import Path
 
 from gaffer_data.errors import ConfigError
 from gaffer_data.filter.features import ObjectFeatures
+from gaffer_data.filter.objaverse import ObjaverseAnnotation
+
+_NAME_LISTS = ("allowed_licenses", "excluded_tags", "excluded_categories")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -37,6 +44,16 @@ class FilterRules:
         min_alpha: reject alpha-blended materials below this alpha.
         max_emission: reject strongly emissive materials.
         require_material: reject objects without any material.
+        allowed_licenses: annotated licences to keep (case-insensitive), e.g. `["cc0", "by", "by-sa"]`
+            drops Objaverse's non-commercial (`by-nc*`) and no-derivatives (`*-nd`) objects; None keeps
+            any licence. An annotated object without a licence is rejected when this is set.
+        excluded_tags: reject annotated objects carrying any of these tag names (case-insensitive).
+        excluded_categories: reject annotated objects in any of these categories (case-insensitive).
+        max_annotated_faces: reject objects whose annotation declares more faces, before loading the
+            file; None for no limit.
+        reject_animated: reject objects whose annotation declares animations.
+        require_annotation: reject objects without an annotation entry (by default they are filtered
+            on geometry only, so the annotation rules above do not apply to them).
     """
 
     max_file_mb: float = 200.0
@@ -50,6 +67,36 @@ class FilterRules:
     min_alpha: float = 0.5
     max_emission: float = 1.0
     require_material: bool = False
+    allowed_licenses: tuple[str, ...] | None = None
+    excluded_tags: tuple[str, ...] = ()
+    excluded_categories: tuple[str, ...] = ()
+    max_annotated_faces: int | None = None
+    reject_animated: bool = False
+    require_annotation: bool = False
+
+    def __post_init__(self) -> None:
+        for name in _NAME_LISTS:
+            value = getattr(self, name)
+            if value is None and name == "allowed_licenses":
+                continue
+            if isinstance(value, list):  # from JSON; frozen, so set through object
+                value = tuple(value)
+                object.__setattr__(self, name, value)
+            if not isinstance(value, tuple) or not all(isinstance(v, str) for v in value):
+                raise ConfigError(
+                    f"`{name}`={value!r} must be a list of strings, e.g. "
+                    f"{['cc0', 'by'] if name == 'allowed_licenses' else ['weapon']}."
+                )
+        faces = self.max_annotated_faces
+        if faces is not None and (
+            isinstance(faces, bool) or not isinstance(faces, int) or faces < 0
+        ):
+            raise ConfigError(
+                f"`max_annotated_faces`={faces!r} must be a non-negative integer, or null for no limit."
+            )
+        for name in ("reject_animated", "require_annotation"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"`{name}`={getattr(self, name)!r} must be true or false.")
 
     @classmethod
     def from_json(cls, path: str | Path) -> "FilterRules":
@@ -68,7 +115,71 @@ class FilterRules:
             raise ConfigError(
                 f"`rules`={str(path)!r} has unknown fields {unknown}; valid: {sorted(names)}."
             )
-        return cls(**data)
+        try:
+            return cls(**data)
+        except ConfigError as exc:
+            raise ConfigError(f"`rules`={str(path)!r}: {exc}") from exc
+
+    def uses_annotations(self) -> bool:
+        """Whether any annotation rule is set."""
+        return (
+            self.allowed_licenses is not None
+            or bool(self.excluded_tags or self.excluded_categories)
+            or self.max_annotated_faces is not None
+            or self.reject_animated
+            or self.require_annotation
+        )
+
+    def evaluate_annotation(self, annotation: ObjaverseAnnotation | None) -> list[RuleOutcome]:
+        """Apply the annotation rules that are set (none for an unannotated object, unless
+        `require_annotation`); cheap, so they run before the file is loaded."""
+        out: list[RuleOutcome] = []
+
+        def add(
+            rule: str, ok: bool, value: float | str | None, limit: float | str | None, reason: str
+        ) -> None:
+            out.append(
+                RuleOutcome(
+                    rule=rule, passed=ok, value=value, limit=limit, reason="" if ok else reason
+                )
+            )
+
+        if annotation is None:
+            if self.require_annotation:
+                add("require_annotation", False, None, None, "no annotation entry")
+            return out
+        a = annotation
+        if self.allowed_licenses is not None:
+            allowed = ", ".join(self.allowed_licenses)
+            ok = a.license is not None and a.license.strip().lower() in {
+                lic.lower() for lic in self.allowed_licenses
+            }
+            reason = f"licence {a.license!r} not allowed (allowed: {allowed})"
+            add("allowed_licenses", ok, a.license, allowed, reason)
+        for rule, names, excluded in (
+            ("excluded_tags", a.tags, self.excluded_tags),
+            ("excluded_categories", a.categories, self.excluded_categories),
+        ):
+            if excluded:
+                wanted = {e.lower() for e in excluded}
+                hits = sorted({n for n in names if n.lower() in wanted})
+                what = "tags" if rule == "excluded_tags" else "categories"
+                add(
+                    rule,
+                    not hits,
+                    ", ".join(hits) or None,
+                    ", ".join(excluded),
+                    f"excluded {what}: {', '.join(hits)}",
+                )
+        if self.max_annotated_faces is not None:
+            n, limit = a.face_count, self.max_annotated_faces
+            ok = n is None or n <= limit
+            reason = f"annotation declares {n} faces > max_annotated_faces={limit} (not loaded)"
+            add("max_annotated_faces", ok, n, limit, reason)
+        if self.reject_animated:
+            n = a.animation_count
+            add("reject_animated", not n, n, 0, f"animated object ({n} animations)")
+        return out
 
     def evaluate(self, features: ObjectFeatures) -> list[RuleOutcome]:
         """Apply every rule; a feature error is itself a failed rule."""
