@@ -249,3 +249,41 @@ def test_residual_pipeline_adds_the_input_back_and_survives_save_load(tmp_path: 
 
     with pytest.raises(CheckpointMismatchError, match=r"config\.residual"):
         load_pretrained(tmp_path / "m")
+
+
+def test_zero_terminal_snr_removes_the_starting_noise_from_a_one_step_sample(tmp_path: Path) -> None:
+    from gaffer_diffusion import SchedulerConfig
+    from gaffer_diffusion.schedulers import make_scheduler
+
+    with pytest.raises(ConfigError, match=r"rescale_betas_zero_snr.*epsilon"):
+        SchedulerConfig(prediction_type="epsilon", rescale_betas_zero_snr=True)
+    zsnr = SchedulerConfig(
+        prediction_type="v_prediction", timestep_spacing="trailing", rescale_betas_zero_snr=True
+    )
+    old = dataclasses.replace(zsnr, rescale_betas_zero_snr=False)
+    v = torch.full((1, 4, 2, 2), -0.1)  # a model's v at t=999: "the clean sample is 0.1"
+    g = torch.Generator().manual_seed(0)
+    z_a, z_b = torch.randn(1, 4, 2, 2, generator=g), torch.randn(1, 4, 2, 2, generator=g)
+
+    def one_step(cfg: SchedulerConfig, z_T: torch.Tensor) -> torch.Tensor:
+        s = make_scheduler("ddim", cfg)
+        s.set_timesteps(1)
+        return s.step(v, s.timesteps[0], z_T).pred_original_sample
+
+    # the paper's schedule keeps sqrt(abar_999) = 0.068 of the starting noise in x0
+    leak = one_step(old, z_a) - one_step(old, z_b)
+    torch.testing.assert_close(leak, 0.0683 * (z_a - z_b), atol=2e-3, rtol=0.02)
+    # at zero terminal SNR, x0 = -v whatever the noise
+    torch.testing.assert_close(one_step(zsnr, z_a), torch.full_like(v, 0.1))
+    torch.testing.assert_close(one_step(zsnr, z_b), torch.full_like(v, 0.1))
+    for name in ("ddim", "dpmsolver++", "unipc"):
+        s = make_scheduler(name, zsnr)
+        assert float(s.alphas_cumprod[-1]) < 1e-6, name
+    cfg = dataclasses.replace(_small_pixel_config(), residual=True, scheduler=zsnr)
+    model = cfg.setup(seed=0)
+    save_pretrained(model, tmp_path / "m")
+    loaded = load_pretrained(tmp_path / "m").model
+    assert loaded.config.scheduler.rescale_betas_zero_snr
+    assert model_config_matches(loaded.config, cfg)
+    out = RelightPipeline(loaded)(random_conditions(1, 32), SamplingConfig(num_inference_steps=3))
+    assert torch.isfinite(out.images).all()

@@ -53,6 +53,7 @@ def make_scheduler(
         "prediction_type": cfg.prediction_type,
         "steps_offset": cfg.steps_offset,
         "timestep_spacing": timestep_spacing or cfg.timestep_spacing,
+        "rescale_betas_zero_snr": cfg.rescale_betas_zero_snr,
     }
     if name not in SCHEDULERS:
         raise ConfigError(f"`scheduler` is {name!r}; expected one of {list(SCHEDULERS)}.")
