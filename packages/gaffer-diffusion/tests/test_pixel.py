@@ -121,6 +121,7 @@ def test_training_loop_trains_a_pixel_model(tmp_path: Path) -> None:
                 "mixed_precision": "no",
                 "gradient_checkpointing": False,
                 "ema_decay": 0.9,
+                "residual_loss_floor": 0.1,  # gaffer-tiny is residual: the weighted loss runs
             },
             "checkpoint": {"every_steps": 2, "keep": 1},
             "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
@@ -251,7 +252,9 @@ def test_residual_pipeline_adds_the_input_back_and_survives_save_load(tmp_path: 
         load_pretrained(tmp_path / "m")
 
 
-def test_zero_terminal_snr_removes_the_starting_noise_from_a_one_step_sample(tmp_path: Path) -> None:
+def test_zero_terminal_snr_removes_the_starting_noise_from_a_one_step_sample(
+    tmp_path: Path,
+) -> None:
     from gaffer_diffusion import SchedulerConfig
     from gaffer_diffusion.schedulers import make_scheduler
 
@@ -287,3 +290,49 @@ def test_zero_terminal_snr_removes_the_starting_noise_from_a_one_step_sample(tmp
     assert model_config_matches(loaded.config, cfg)
     out = RelightPipeline(loaded)(random_conditions(1, 32), SamplingConfig(num_inference_steps=3))
     assert torch.isfinite(out.images).all()
+
+
+def test_residual_loss_floor_weighs_pairs_by_how_much_their_lighting_changes(
+    tmp_path: Path,
+) -> None:
+    from gaffer_diffusion.training.config import TrainLoopConfig
+    from gaffer_diffusion.training.loop import diffusion_loss
+
+    g = torch.Generator().manual_seed(0)
+    pred, target = torch.randn(2, 4, 4, 4, generator=g), torch.randn(2, 4, 4, 4, generator=g)
+    z0 = torch.stack(
+        [torch.full((4, 4, 4), 0.1), torch.full((4, 4, 4), 3.0)]
+    )  # small, large change
+    plain = diffusion_loss(pred, target, z0, None)
+    torch.testing.assert_close(plain, torch.nn.functional.mse_loss(pred, target))
+    err = (pred - target).pow(2).mean(dim=(1, 2, 3))
+    w = 1.0 / (torch.tensor([0.01, 9.0]) + 0.1)
+    torch.testing.assert_close(diffusion_loss(pred, target, z0, 0.1), (err * w / w.mean()).mean())
+    # the small-change pair carries almost all the weight; equal errors give the plain loss
+    assert float(w[0] / w.mean()) > 1.9
+    torch.testing.assert_close(diffusion_loss(pred, pred + 1.0, z0, 0.1), torch.tensor(1.0))
+    with pytest.raises(ConfigError, match=r"train\.residual_loss_floor"):
+        TrainLoopConfig(residual_loss_floor=0.0)
+    # a model that diffuses the target itself has no "change" to weigh by
+    pytest.importorskip("gaffer_data")
+    pytest.importorskip("accelerate")
+    from gaffer_diffusion.training import TrainConfig, train
+    from gaffer_diffusion.training.testing import write_synthetic_dataset
+
+    root = write_synthetic_dataset(tmp_path / "data", objects=2, views=2, lightings=3)
+    base = {
+        "output_dir": str(tmp_path / "run"),
+        "model": {"init": "preset", "preset": "tiny"},
+        "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
+        "train": {
+            "max_steps": 1,
+            "batch_size": 2,
+            "mixed_precision": "no",
+            "gradient_checkpointing": False,
+            "residual_loss_floor": 0.1,
+        },
+        "logging": {"progress_bar": False, "tensorboard": False},
+        "validation": {"every_steps": 0},
+    }
+    with pytest.raises(ConfigError, match=r"residual_loss_floor.*ModelConfig\.residual"):
+        train(TrainConfig.from_dict(base))

@@ -204,6 +204,12 @@ class TrainLoopConfig:
             late range such as [900, 999] spends the training on the noisiest steps, the only ones a
             one-step sampler from t = 999 uses (diffusers' training scripts call this a timestep
             bias); the model then samples well in one or few steps and worse in many.
+        residual_loss_floor: None (the paper): plain MSE over the batch. A value c (residual models
+            only) weights each item's MSE by 1 / (mean(z0^2) + c), normalised to mean 1 over the
+            batch, where z0 is its scaled target - input: each pair counts by its error relative
+            to how much the lighting changes it, as mean per-image PSNR does. Plain MSE lets the
+            pairs with the largest change (e.g. night -> studio) dominate, and the model then
+            invents changes on pairs whose lighting barely differs.
     """
 
     max_steps: int = 80_000
@@ -219,8 +225,14 @@ class TrainLoopConfig:
     max_consecutive_nonfinite: int = 20
     allow_tf32: bool = True
     timestep_range: tuple[int, int] = (0, 999)
+    residual_loss_floor: float | None = None
 
     def __post_init__(self) -> None:
+        if self.residual_loss_floor is not None and not self.residual_loss_floor > 0:
+            raise ConfigError(
+                f"`train.residual_loss_floor` is {self.residual_loss_floor}; expected a positive "
+                "number (e.g. 0.1) or null for the paper's plain MSE."
+            )
         lo, hi = self.timestep_range
         if not 0 <= lo <= hi:
             raise ConfigError(

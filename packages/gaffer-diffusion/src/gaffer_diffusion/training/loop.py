@@ -37,6 +37,8 @@ from typing import Any, Literal
 import numpy as np
 import torch
 import torch.nn.functional as F
+from jaxtyping import Float
+from torch import Tensor
 
 from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.configs import get_preset
@@ -166,6 +168,11 @@ class _Trainer:
                 f"`train.timestep_range` is {list(config.train.timestep_range)}; the model's schedule "
                 f"has {n_train} timesteps, so hi must be <= {n_train - 1}."
             )
+        if config.train.residual_loss_floor is not None and not model.config.residual:
+            raise ConfigError(
+                "`train.residual_loss_floor` is set but the model diffuses the target itself "
+                "(`ModelConfig.residual` false); remove it, or train a residual model."
+            )
         self.alphas_cumprod = self.scheduler.alphas_cumprod.to(self.device)
         cuda = self.device.type == "cuda"
         mp = config.train.mixed_precision
@@ -226,9 +233,23 @@ class _Trainer:
         with self.acc.autocast():
             # [BT, 16, h, w]  z_t + 3x4 conditioning latents
             pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
-        return F.mse_loss(
-            pred.float(), _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
-        )
+        target = _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
+        return diffusion_loss(pred.float(), target, z0, cfg.train.residual_loss_floor)
+
+
+def diffusion_loss(
+    pred: Float[Tensor, "n c h w"],
+    target: Float[Tensor, "n c h w"],
+    z0: Float[Tensor, "n c h w"],
+    residual_loss_floor: float | None,
+) -> Tensor:
+    """MSE of the UNet output; with a floor c, item i weighs 1 / (mean(z0_i^2) + c), normalised
+    to mean 1 (`TrainLoopConfig.residual_loss_floor`)."""
+    if residual_loss_floor is None:
+        return F.mse_loss(pred, target)
+    weight = 1.0 / (z0.float().pow(2).mean(dim=(1, 2, 3)) + residual_loss_floor)  # [n]
+    per_item = (pred - target).pow(2).mean(dim=(1, 2, 3))
+    return (per_item * weight / weight.mean()).mean()
 
 
 def _prediction_target(
