@@ -493,7 +493,10 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
         "quick": args.quick,
         "config": {
             "model": "gaffer-tiny (shipped weights, pixel space, 64x64)",
-            "data": "gaffer_diffusion/data/example: held-out object, held-out HDRIs, lighting 0 as input",
+            "data": (
+                "gaffer_diffusion/data/example: held-out object, lighting 0 as input, targets under "
+                "its other lightings (all 8 bundled HDRIs, 6 of them seen in training)"
+            ),
             "pairs": len(pairs),
             "guidance_scale": GAFFER_TINY_GUIDANCE,
             "seed": 0,

@@ -28,8 +28,9 @@ GAFFER_TINY_AVERAGE_SAMPLES = 4
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
     "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
-    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json` (see its "
-    "MODEL_CARD.md) and load that run's `final/` folder with `gaffer_diffusion.loading.load_pretrained`."
+    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json`, then "
+    "`gaffer-tiny-stage2.json` and `gaffer-tiny-stage3.json` (see its MODEL_CARD.md), and load the last "
+    "run's `final/` folder with `gaffer_diffusion.loading.load_pretrained`."
 )
 
 
