@@ -380,3 +380,37 @@ def test_converted_authors_layout_uses_their_encoded_maps(tmp_path) -> None:
     assert result.settings["lighting"] == "authors' pre-encoded maps"
     assert len(result.report.items) == 2
     assert len(dataset_pairs(out, input_lighting=1, limit=1)) == 1
+
+
+def test_evaluate_dataset_keeps_the_input_background_by_default(dataset, tmp_path) -> None:
+    root, _ = dataset
+    pairs = dataset_pairs(root)[:2]
+    pipe = RelightPipeline(tiny_model())
+    sampling = SamplingConfig(num_inference_steps=1)
+    kept = evaluate_dataset(
+        pipe,
+        pairs,
+        EvaluationConfig(sampling=sampling, predictions_dir=tmp_path / "kept"),
+        perceptual=None,
+    )
+    full = evaluate_dataset(
+        pipe,
+        pairs,
+        EvaluationConfig(
+            sampling=sampling, predictions_dir=tmp_path / "full", keep_background=False
+        ),
+        perceptual=None,
+    )
+    from gaffer_diffusion.evaluation import read_rgba_on_white
+
+    name = pairs[0].name.split("/")[1] + ".png"
+    k = np.asarray(Image.open(tmp_path / "kept" / "disc" / name), np.float32) / 255
+    f = np.asarray(Image.open(tmp_path / "full" / "disc" / name), np.float32) / 255
+    x, alpha = read_rgba_on_white(pairs[0].input_image, 64)
+    bg, fg = alpha == 0.0, alpha == 1.0
+    assert bg.any() and fg.any()
+    np.testing.assert_allclose(k[bg], x[bg], atol=1 / 255)  # background: the input's white
+    assert np.abs(f[bg] - x[bg]).max() > 2 / 255  # the random model paints the background
+    np.testing.assert_array_equal(k[fg], f[fg])  # object: the model's pixels either way
+    assert kept.report.mean_raw.psnr > full.report.mean_raw.psnr
+    assert kept.settings["background"] != full.settings["background"]

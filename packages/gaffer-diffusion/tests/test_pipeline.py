@@ -272,3 +272,30 @@ def test_average_samples_is_the_mean_of_k_samples_per_item(pipe) -> None:
         SamplingConfig(average_samples=2, eta=0.5)
     with pytest.raises(ConfigError, match="latents"):
         pipe.sample(enc, avg, latents=torch.zeros(2, 4, h, h))
+
+
+def test_mask_keeps_the_input_background_and_only_blends_edges(pipe) -> None:
+    import dataclasses
+
+    from gaffer_diffusion import ShapeError
+
+    cond = random_conditions(2, seed=3)
+    mask = torch.zeros(2, 1, 64, 64)
+    mask[:, :, 16:48, 16:48] = 1.0
+    mask[:, :, 16:48, 15] = 0.25  # a soft edge column
+    full = pipe(cond, FAST, seeds=[1, 2, 3, 4], num_images_per_condition=2).images
+    kept = pipe(
+        dataclasses.replace(cond, mask=mask), FAST, seeds=[1, 2, 3, 4], num_images_per_condition=2
+    ).images
+    x = cond.image.repeat_interleave(2, dim=0)
+    inside = mask.repeat_interleave(2, dim=0).expand(-1, 3, -1, -1) == 1.0
+    outside = mask.repeat_interleave(2, dim=0).expand(-1, 3, -1, -1) == 0.0
+    assert torch.equal(kept[inside], full[inside])  # the object: the model's pixels
+    assert torch.equal(kept[outside], x[outside])  # the background: the input's
+    torch.testing.assert_close(
+        kept[:, :, 16:48, 15], x[:, :, 16:48, 15] + 0.25 * (full - x)[:, :, 16:48, 15]
+    )
+    with pytest.raises(ShapeError, match="mask"):
+        dataclasses.replace(cond, mask=torch.ones(2, 1, 32, 32))
+    with pytest.raises(ShapeError, match="mask"):
+        dataclasses.replace(cond, mask=torch.ones(2, 3, 64, 64))

@@ -40,6 +40,7 @@ def test_item_shapes_and_targets(root: Path) -> None:
     item = ds[3]
     assert item.input_image.shape == (3, 16, 16) and item.target_images.shape == (2, 3, 16, 16)
     assert item.envmaps.shape == (2, 8, 16, 3) and item.w2c_blender.shape == (3, 4)
+    assert item.input_alpha is not None and item.input_alpha.shape == (1, 16, 16)
     batch = collate_items([ds[0], ds[1], ds[2]])
     assert batch.target_images.shape == (3, 2, 3, 16, 16) and batch.envmaps.shape == (
         3,
@@ -77,6 +78,12 @@ def test_composite_on_white(tmp_path: Path) -> None:
     assert torch.allclose(img[:, 3, 3], torch.tensor([1.0, 0.0, 0.0]))
     assert abs(float(img[0, 0, 0]) - (1 - 128 / 255)) < 1e-6
     assert load_image_on_white(tmp_path / "a.png", 4).shape == (3, 4, 4)
+    from gaffer_diffusion.training.dataset import load_rgba_on_white
+
+    rgb, alpha = load_rgba_on_white(tmp_path / "a.png", 8)
+    assert torch.equal(rgb, img) and alpha.shape == (1, 8, 8)
+    assert float(alpha[0, 3, 3]) == 1.0 and float(alpha[0, 7, 7]) == 0.0
+    assert abs(float(alpha[0, 0, 0]) - 128 / 255) < 1e-6
 
 
 def test_sampler_resumes_and_shards_exactly() -> None:

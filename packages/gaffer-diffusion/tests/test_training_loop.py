@@ -261,3 +261,34 @@ def test_timestep_range_limits_the_training_timesteps(
         _config(tmp_path / "bad", data_root, train={"timestep_range": [500, 100]})
     with pytest.raises(ConfigError, match=r"train\.timestep_range"):
         train(_config(tmp_path / "big", data_root, train={"timestep_range": [0, 1000]}))
+
+
+def test_mirror_views_flip_a_view_with_its_targets_and_maps(
+    tmp_path: Path, data_root: Path
+) -> None:
+    from gaffer_diffusion.errors import ConfigError
+    from gaffer_envmap.augment import mirror_camera_x
+
+    g = torch.Generator().manual_seed(0)
+    b, t = 64, 2
+    inputs, ldr = torch.rand(b, 3, 4, 8, generator=g), torch.rand(b * t, 3, 4, 8, generator=g)
+    targets, hdr = torch.rand(b * t, 3, 4, 8, generator=g), torch.rand(b * t, 3, 4, 8, generator=g)
+    out = loop_mod._mirror_views(
+        inputs, targets, ldr, hdr, t, 0.5, torch.Generator().manual_seed(1)
+    )
+    flipped = [bool(torch.equal(out[0][i], inputs[i].flip(-1))) for i in range(b)]
+    assert 10 < sum(flipped) < 54  # about half the views
+    for i, f in enumerate(flipped):
+        if not f:
+            assert torch.equal(out[0][i], inputs[i])
+        for k in range(i * t, i * t + t):  # every target of a view follows its input
+            assert torch.equal(out[1][k], targets[k].flip(-1) if f else targets[k])
+            assert torch.equal(out[2][k], mirror_camera_x(ldr[k : k + 1])[0] if f else ldr[k])
+            assert torch.equal(out[3][k], mirror_camera_x(hdr[k : k + 1])[0] if f else hdr[k])
+    # training runs with it, and the probability is validated
+    result = train(
+        _config(tmp_path / "mirror", data_root, data={"mirror_prob": 0.5}, train={"max_steps": 2})
+    )
+    assert result.step == 2
+    with pytest.raises(ConfigError, match=r"data\.mirror_prob"):
+        _config(tmp_path / "bad", data_root, data={"mirror_prob": 1.5})

@@ -93,3 +93,21 @@ def test_yaw_refuses_inexact_steps() -> None:
     env = EnvironmentMap(radiance_linear=np.zeros((3, 6, 3), np.float32))
     with pytest.raises(GafferEnvmapError, match="divide the map width"):
         yaw_roll(env, 1, 4)
+
+
+def test_mirror_camera_x_negates_camera_x_of_every_pixel() -> None:
+    import torch
+
+    from gaffer_envmap.augment import mirror_camera_x
+    from gaffer_envmap.conventions import direction_grid
+    from gaffer_envmap.errors import GafferEnvmapError
+
+    # a map whose value at each pixel is its own camera-frame direction
+    dirs_cam = torch.from_numpy(direction_grid(8, 16, "neural-gaffer-camera")).permute(2, 0, 1)
+    mirrored = mirror_camera_x(dirs_cam[None])[0]
+    # the mirrored scene's light from d is the original's from (-x, y, z)
+    expected = dirs_cam * torch.tensor([-1.0, 1.0, 1.0], dtype=dirs_cam.dtype).view(3, 1, 1)
+    torch.testing.assert_close(mirrored, expected)
+    assert torch.equal(mirror_camera_x(mirrored[None])[0], dirs_cam)  # an involution
+    with pytest.raises(GafferEnvmapError, match="even width"):
+        mirror_camera_x(torch.zeros(1, 3, 8, 15))

@@ -199,6 +199,12 @@ def _parser() -> argparse.ArgumentParser:
         "2-core machine 2 OpenMP threads ran 20x slower than 1)",
     )
     d.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="keep the model's whole output; by default the input's background (outside its "
+        "alpha/mask) is kept, as the view does not move",
+    )
+    d.add_argument(
         "--no-extra-hdris",
         action="store_true",
         help="skip the bundled HDRIs that have no ground-truth render",
@@ -238,6 +244,12 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
+    p.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="keep the model's whole output; by default the input's background (outside its "
+        "alpha/mask) is kept, as the view does not move",
+    )
 
 
 def _input_lighting(text: str) -> int | str:
@@ -371,6 +383,7 @@ def _relight(args: argparse.Namespace) -> int:
             cond = RelightingConditions(
                 image=prepared.image.expand(hi - lo, -1, -1, -1),
                 lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
+                mask=None if args.full_frame else prepared.mask.expand(hi - lo, -1, -1, -1),
             )
             # the same seed for every frame: the light moves, the noise does not (less flicker)
             out = pipe(cond, sampling, seeds=[args.seed] * (hi - lo))
@@ -416,7 +429,7 @@ def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
     prepared = []
     for path in images:
         mask = args.mask / path.name if args.mask is not None and args.mask.is_dir() else args.mask
-        prepared.append(load_object_image(path, mask_path=mask, size=size).image)
+        prepared.append(load_object_image(path, mask_path=mask, size=size))
     if args.envmaps is not None:
         maps = _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
         lights = [(m.stem, _envmap_lighting(args, m, size)) for m in maps]
@@ -430,7 +443,8 @@ def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
         for lo in range(0, len(jobs), args.batch_size):
             chunk = jobs[lo : lo + args.batch_size]
             cond = RelightingConditions(
-                image=torch.cat([prepared[i] for i, _ in chunk]),
+                image=torch.cat([prepared[i].image for i, _ in chunk]),
+                mask=None if args.full_frame else torch.cat([prepared[i].mask for i, _ in chunk]),
                 lighting=LightingMaps(
                     ldr=torch.cat([lights[e][1].ldr for _, e in chunk]),
                     hdr=torch.cat([lights[e][1].hdr for _, e in chunk]),
@@ -518,6 +532,7 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
         compat=args.compat,
         predictions_dir=args.save_predictions,
         progress=True,
+        keep_background=not args.full_frame,
     )
     settings = {
         "dataset": str(args.dataset),
@@ -588,6 +603,7 @@ def _demo(args: argparse.Namespace) -> int:
         batch_size=args.batch_size,
         device=args.device,
         extra_hdris=not args.no_extra_hdris,
+        keep_background=not args.full_frame,
     )
     result = run_demo(config)
     gif = f", {result.turntable_gif}" if result.turntable_gif is not None else ""

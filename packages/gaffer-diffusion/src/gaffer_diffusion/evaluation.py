@@ -139,6 +139,9 @@ class EvaluationConfig:
         baselines: also score the unrelit input against each target (its "aligned" rows are the
             second baseline, the input channel-aligned to the target); a relighting model is only
             useful where it beats both.
+        keep_background: keep the input outside its alpha mask (`RelightingConditions.mask`): the
+            view is fixed, so the background is known. False scores the model's full frame as the
+            authors' code does.
 
     Raises:
         ConfigError: on a non-positive `batch_size` or an unknown `compat`.
@@ -151,6 +154,7 @@ class EvaluationConfig:
     predictions_dir: Path | None = None
     progress: bool = False
     baselines: bool = True
+    keep_background: bool = True
 
     def __post_init__(self) -> None:
         if not isinstance(self.batch_size, int) or self.batch_size < 1:
@@ -583,7 +587,9 @@ def evaluate_dataset(
     done = 0
     try:
         for batch in _batches(pairs, config.batch_size):
-            inputs = [read_rgba_on_white(p.input_image, size)[0] for p in batch]
+            inputs, input_alphas = zip(
+                *(read_rgba_on_white(p.input_image, size) for p in batch), strict=True
+            )
             targets, alphas = zip(
                 *(read_rgba_on_white(p.target_image, size) for p in batch), strict=True
             )
@@ -592,7 +598,9 @@ def evaluate_dataset(
                 for p, a in zip(batch, alphas, strict=True)
             ]
             cond = RelightingConditions(
-                image=_to_chw(inputs), lighting=pair_lighting(batch, size, config.compat)
+                image=_to_chw(list(inputs)),
+                lighting=pair_lighting(batch, size, config.compat),
+                mask=_to_chw(list(input_alphas)) if config.keep_background else None,
             )
             out = pipe(cond, config.sampling, seeds=[config.seed] * len(batch))
             pred = quantize_8bit(out.images.float().cpu())
@@ -608,7 +616,7 @@ def evaluate_dataset(
             if config.baselines:
                 baselines.append(
                     evaluate_images(
-                        _to_chw(inputs),
+                        _to_chw(list(inputs)),
                         _to_chw(list(targets)),
                         mask=_to_chw(masks),
                         names=[p.name for p in batch],
@@ -641,6 +649,9 @@ def evaluate_dataset(
         "latent_mode": s.latent_mode,
         "seed": config.seed,
         "batch_size": config.batch_size,
+        "background": "input kept outside its alpha"
+        if config.keep_background
+        else "model's full frame",
         "lighting": "authors' pre-encoded maps"
         if isinstance(pairs[0].lighting, EncodedLightingFiles)
         else f"env maps encoded by gaffer-envmap, compat={config.compat!r}",

@@ -10,11 +10,15 @@ roll of the image to the LEFT.
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError
+
+if TYPE_CHECKING:
+    import torch
 
 
 def flip_horizontal(env: EnvironmentMap) -> EnvironmentMap:
@@ -38,6 +42,31 @@ def yaw_roll(env: EnvironmentMap, step: int, num_steps: int) -> EnvironmentMap:
         )
     shift = -(step % num_steps) * (env.width // num_steps)
     return env.with_radiance(np.roll(env.radiance_linear, shift, axis=1))
+
+
+def mirror_camera_x(maps_cam: "torch.Tensor") -> "torch.Tensor":
+    """Camera-frame maps (`neural-gaffer-camera` layout) of the scene mirrored left-right in the image.
+
+    Flipping an input image horizontally mirrors the scene in camera x (x -> -x). In this layout the
+    centre column is camera right, so the mirror maps u -> 0.5 - u: a horizontal flip plus a roll by
+    half the width, exact (a permutation of columns) for an even width. Used for mirror augmentation
+    in training and mirror test-time averaging: `relight(flip(x), mirror_camera_x(L))` flipped back
+    estimates the same image as `relight(x, L)`.
+
+    Args:
+        maps_cam: `[..., He, We]` camera-frame lat-long maps, channels first (e.g. `[B, 3, H, W]`
+            LDR/HDR encodings), any dtype or device.
+
+    Raises:
+        GafferEnvmapError: on an odd width (the half-width roll would not be exact).
+    """
+    width = int(maps_cam.shape[-1])
+    if width % 2:
+        raise GafferEnvmapError(
+            f"`maps_cam` has odd width {width}; the camera-x mirror needs an even width (resize the "
+            "maps to an even width first)."
+        )
+    return maps_cam.flip(-1).roll(width // 2, dims=-1)
 
 
 @dataclass(frozen=True)

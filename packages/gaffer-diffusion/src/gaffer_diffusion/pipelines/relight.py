@@ -294,11 +294,15 @@ class RelightPipeline:
         seeds: Sequence[int] | None = None,
         callback: StepCallback | None = None,
     ) -> RelightOutput:
-        """Encode `conditions` and sample (see `encode` and `sample`)."""
+        """Encode `conditions` and sample (see `encode` and `sample`).
+
+        With `conditions.mask`, the output keeps the input outside the object (see
+        `RelightingConditions`); `sample` alone always returns the model's full frame.
+        """
         sampling = sampling or SamplingConfig()
         enc_gen = generator if isinstance(generator, torch.Generator) else None
         encoded = self.encode(conditions, latent_mode=sampling.latent_mode, generator=enc_gen)
-        return self.sample(
+        out = self.sample(
             encoded,
             sampling,
             num_images_per_condition=num_images_per_condition,
@@ -306,6 +310,13 @@ class RelightPipeline:
             seeds=seeds,
             callback=callback,
         )
+        if conditions.mask is None:
+            return out
+        k = num_images_per_condition
+        x = conditions.image.to(out.images.device, torch.float32).repeat_interleave(k, dim=0)
+        m = conditions.mask.to(out.images.device, torch.float32).repeat_interleave(k, dim=0)
+        # lerp keeps NaN from the model, so the finiteness checks downstream still see it
+        return dataclasses.replace(out, images=torch.lerp(x, out.images, m))
 
     def _fp32_model(self) -> NeuralGafferModel:
         if self.dtype == torch.float32:

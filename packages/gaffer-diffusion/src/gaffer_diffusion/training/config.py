@@ -99,6 +99,10 @@ class DataConfig:
             longer exists (datasets moved between machines).
         targets_per_sample: target lightings per sample, same view and input (paper: 2).
         area_light_prob: probability that the input is the area-light render (paper: 0.1).
+        mirror_prob: probability that a view (input and its targets) is flipped left-right, with
+            its camera-frame lighting maps mirrored to match (`gaffer_envmap.augment.mirror_camera_x`).
+            Relighting commutes with that mirror, so this doubles the views at no render cost; the
+            paper does not do it (0.0, the default).
         envmap_height: environment maps are resized (solid-angle exact) to `[h, 2h]` so a batch stacks;
             the rotation to the camera frame happens later, batched on the training device.
         lighting_compat: gaffer-envmap encoding of the lighting maps.
@@ -117,6 +121,7 @@ class DataConfig:
     envmap_dirs: tuple[Path, ...] = ()
     targets_per_sample: int = 2
     area_light_prob: float = 0.1
+    mirror_prob: float = 0.0
     envmap_height: int = 128
     lighting_compat: LightingCompat = "default"
     max_radiance: float = 1e30
@@ -129,6 +134,8 @@ class DataConfig:
             raise ConfigError(f"`data.targets_per_sample` is {self.targets_per_sample}; need >= 1.")
         if not 0.0 <= self.area_light_prob <= 1.0:
             raise ConfigError(f"`data.area_light_prob` is {self.area_light_prob}; need [0, 1].")
+        if not 0.0 <= self.mirror_prob <= 1.0:
+            raise ConfigError(f"`data.mirror_prob` is {self.mirror_prob}; need [0, 1].")
         if self.envmap_height < 2:
             raise ConfigError(f"`data.envmap_height` is {self.envmap_height}; need >= 2.")
         if not (math.isfinite(self.max_radiance) and self.max_radiance > 0):

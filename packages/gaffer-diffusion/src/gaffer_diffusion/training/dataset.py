@@ -82,6 +82,8 @@ class TrainItem:
         encoded_ldr: `[T, 3, H, W]` the authors' camera-frame LDR maps of the targets in [0, 1], at the
             image resolution, or None (the item has `envmaps`).
         encoded_hdr: `[T, 3, H, W]` the matching HDR maps, or None.
+        input_alpha: `[1, H, W]` the input view's object mask (its alpha), or None when unknown;
+            validation keeps the input's background with it (`RelightingConditions.mask`).
 
     Raises:
         DataError: both or neither lighting forms are given, or their shapes disagree.
@@ -98,6 +100,7 @@ class TrainItem:
     skipped_files: tuple[str, ...] = ()
     encoded_ldr: Float[Tensor, "T 3 H W"] | None = None
     encoded_hdr: Float[Tensor, "T 3 H W"] | None = None
+    input_alpha: Float[Tensor, "1 H W"] | None = None
 
     def __post_init__(self) -> None:
         encoded = (self.encoded_ldr is not None, self.encoded_hdr is not None)
@@ -248,6 +251,13 @@ def load_image_on_white(
         OSError: unreadable or truncated file (PIL's errors).
         ValueError: unusable image data.
     """
+    return load_rgba_on_white(path, size, alpha_path)[0]
+
+
+def load_rgba_on_white(
+    path: Path, size: int, alpha_path: Path | None = None
+) -> tuple[Float[Tensor, "3 S S"], Float[Tensor, "1 S S"]]:
+    """`load_image_on_white` and the alpha it used, `[1, size, size]` in [0, 1], resized the same way."""
     with Image.open(path) as im:
         im.load()
         rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
@@ -260,12 +270,14 @@ def load_image_on_white(
         if alpha.shape[:2] != rgb.shape[:2]:
             raise ValueError(f"mask {alpha_path} has size {alpha.shape[:2]}, image {rgb.shape[:2]}")
     # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
-    out = torch.from_numpy(rgb * alpha + (1.0 - alpha)).permute(2, 0, 1)  # [3, h, w]
+    out = torch.from_numpy(np.concatenate([rgb * alpha + (1.0 - alpha), alpha], axis=-1))
+    out = out.permute(2, 0, 1)  # [4, h, w]
     if tuple(out.shape[1:]) != (size, size):
         out = F.interpolate(
             out[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
         )[0]
-    return out.clamp(0.0, 1.0).contiguous()
+    out = out.clamp(0.0, 1.0)
+    return out[:3].contiguous(), out[3:].contiguous()
 
 
 class _EnvmapCache:
@@ -558,9 +570,10 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         alpha = None if view.alpha is None else obj.path(view.alpha)
         size = self.resolution
         if use_area and view.area is not None:
-            input_image = load_image_on_white(obj.path(view.area.png), size, alpha)
+            input_image, input_alpha = load_rgba_on_white(obj.path(view.area.png), size, alpha)
         else:
-            input_image = load_image_on_white(obj.path(lit[int(order[t])].png), size, alpha)
+            input_png = obj.path(lit[int(order[t])].png)
+            input_image, input_alpha = load_rgba_on_white(input_png, size, alpha)
         target_images = torch.stack(
             [load_image_on_white(obj.path(li.png), size, alpha) for li in targets]
         )
@@ -578,6 +591,7 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
             input_is_area=bool(use_area),
             object_id=obj.object_id,
             view_index=view.index,
+            input_alpha=input_alpha,
         )
 
     def _load_authors(

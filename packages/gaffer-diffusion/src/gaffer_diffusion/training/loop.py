@@ -201,6 +201,10 @@ class _Trainer:
         ldr, hdr = batch_lighting_of(
             batch, size=res, compat=cfg.data.lighting_compat, device=dev
         )  # [BT, 3, H, W] each, camera frame, in [0, 1]
+        if cfg.data.mirror_prob > 0:
+            inputs, targets, ldr, hdr = _mirror_views(
+                inputs, targets, ldr, hdr, t, cfg.data.mirror_prob, gen
+            )
         with torch.no_grad():
             # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
             stacked = torch.cat([inputs, hdr, ldr, targets]) * 2.0 - 1.0
@@ -235,6 +239,30 @@ class _Trainer:
             pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
         target = _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
         return diffusion_loss(pred.float(), target, z0, cfg.train.residual_loss_floor)
+
+
+def _mirror_views(
+    inputs: Float[Tensor, "B 3 H W"],
+    targets: Float[Tensor, "BT 3 H W"],
+    ldr: Float[Tensor, "BT 3 H W"],
+    hdr: Float[Tensor, "BT 3 H W"],
+    targets_per_view: int,
+    prob: float,
+    gen: torch.Generator,
+) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """Flip each view left-right with probability `prob`: its input, its targets and, mirrored in
+    camera x, their lighting maps (`DataConfig.mirror_prob`)."""
+    from gaffer_envmap.augment import mirror_camera_x
+
+    b = inputs.shape[0]
+    flip_view = (torch.rand(b, generator=gen) < prob).to(inputs.device)  # [B]
+    flip_target = flip_view.repeat_interleave(targets_per_view).view(-1, 1, 1, 1)  # [BT,1,1,1]
+    return (
+        torch.where(flip_view.view(b, 1, 1, 1), inputs.flip(-1), inputs),
+        torch.where(flip_target, targets.flip(-1), targets),
+        torch.where(flip_target, mirror_camera_x(ldr), ldr),
+        torch.where(flip_target, mirror_camera_x(hdr), hdr),
+    )
 
 
 def diffusion_loss(

@@ -41,6 +41,8 @@ class ValidationSet:
         lighting_encoded: `[N]` bool, or None when every pair has an environment map.
         encoded_ldr: `[Na, 3, H, W]` the authors' LDR maps of the other pairs, or None.
         encoded_hdr: `[Na, 3, H, W]` their HDR maps, or None.
+        input_masks: `[N, 1, H, W]` the inputs' alphas (the background is kept outside them), or
+            None when some item has none (the model's full frame is scored).
     """
 
     input_images: Float[Tensor, "N 3 H W"]
@@ -51,6 +53,7 @@ class ValidationSet:
     lighting_encoded: Tensor | None = None
     encoded_ldr: Float[Tensor, "Na 3 H W"] | None = None
     encoded_hdr: Float[Tensor, "Na 3 H W"] | None = None
+    input_masks: Float[Tensor, "N 1 H W"] | None = None
 
     @property
     def size(self) -> int:
@@ -94,6 +97,9 @@ def build_validation_set(dataset: RelightTrainDataset, num_samples: int) -> Vali
         lighting_encoded=torch.tensor([i.lighting_encoded for i in items]) if ldr else None,
         encoded_ldr=torch.stack(ldr) if ldr else None,
         encoded_hdr=torch.stack(hdr) if hdr else None,
+        input_masks=torch.stack([i.input_alpha for i in items])  # type: ignore[misc]
+        if all(i.input_alpha is not None for i in items)
+        else None,
     )
 
 
@@ -159,6 +165,7 @@ def validate(
         cond = RelightingConditions(
             image=valset.input_images[lo:hi].to(device),
             lighting=LightingMaps(ldr=ldr_all[lo:hi], hdr=hdr_all[lo:hi]),
+            mask=None if valset.input_masks is None else valset.input_masks[lo:hi].to(device),
         )
         out = pipe(cond, sampling, seeds=[config.seed + i for i in range(lo, hi)])
         preds.append(out.images.float().cpu())
