@@ -299,3 +299,47 @@ def test_mask_keeps_the_input_background_and_only_blends_edges(pipe) -> None:
         dataclasses.replace(cond, mask=torch.ones(2, 1, 32, 32))
     with pytest.raises(ShapeError, match="mask"):
         dataclasses.replace(cond, mask=torch.ones(2, 3, 64, 64))
+
+
+def test_mirror_average_is_the_mean_of_the_prediction_and_the_mirrored_one(pipe) -> None:
+    import dataclasses
+
+    from gaffer_diffusion.conditioning import LightingMaps
+    from gaffer_envmap.augment import mirror_camera_x
+
+    cond = random_conditions(2, seed=5)
+    mask = (torch.rand(2, 1, 64, 64, generator=torch.Generator().manual_seed(0)) > 0.3).float()
+    cond = dataclasses.replace(cond, mask=mask)
+    both = pipe(cond, dataclasses.replace(FAST, mirror_average=True), seeds=[3, 4]).images
+    plain = pipe(cond, FAST, seeds=[3, 4]).images
+    mirrored = dataclasses.replace(
+        cond,
+        image=cond.image.flip(-1),
+        lighting=LightingMaps(
+            ldr=mirror_camera_x(cond.lighting.ldr), hdr=mirror_camera_x(cond.lighting.hdr)
+        ),
+        mask=mask.flip(-1),
+    )
+    back = pipe(mirrored, FAST, seeds=[3, 4]).images.flip(-1)
+    torch.testing.assert_close(both, (plain + back) / 2, rtol=1e-4, atol=1e-5)
+    assert not torch.allclose(both, plain, atol=1e-3)
+    # batch invariant, and with several images per condition
+    alone = pipe(
+        dataclasses.replace(
+            cond,
+            image=cond.image[1:],
+            lighting=LightingMaps(ldr=cond.lighting.ldr[1:], hdr=cond.lighting.hdr[1:]),
+            mask=mask[1:],
+        ),
+        dataclasses.replace(FAST, mirror_average=True),
+        seeds=[4],
+    ).images
+    torch.testing.assert_close(alone[0], both[1], rtol=1e-4, atol=1e-5)
+    k2 = pipe(
+        cond,
+        dataclasses.replace(FAST, mirror_average=True),
+        seeds=[3, 9, 4, 9],
+        num_images_per_condition=2,
+    ).images
+    assert k2.shape == (4, 3, 64, 64)
+    torch.testing.assert_close(k2[[0, 2]], both, rtol=1e-4, atol=1e-5)

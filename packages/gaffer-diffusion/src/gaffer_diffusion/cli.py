@@ -186,6 +186,13 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="mean of K samples per image (default: the model's suggestion, else 1)",
     )
+    d.add_argument(
+        "--mirror-average",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="average with the input mirrored left-right under the mirrored lighting (2x the cost; "
+        "default: off, gaffer-tiny: its model card's setting)",
+    )
     d.add_argument("--frames", type=int, default=24, help="turntable frames (0: none)")
     d.add_argument("--fps", type=float, default=12.0, help="turntable GIF frames per second")
     d.add_argument("--seed", type=int, default=0)
@@ -240,6 +247,13 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
         default=None,
         help="mean of K samples per output (a posterior-mean estimate: best PSNR, K times the cost; "
         "default 1, gaffer-tiny: its model card's setting)",
+    )
+    p.add_argument(
+        "--mirror-average",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="average with the input mirrored left-right under the mirrored lighting (2x the cost; "
+        "default: off, gaffer-tiny: its model card's setting)",
     )
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
@@ -344,15 +358,18 @@ def _progress(total: int, desc: str) -> "tqdm[Any]":
 
 def _sampling(args: argparse.Namespace) -> SamplingConfig:
     steps, guidance, average = args.steps, args.guidance, args.average_samples
+    mirror = args.mirror_average
     if getattr(args, "checkpoint", None) is None:  # gaffer-tiny: the settings it was evaluated with
         steps = steps or pretrained.GAFFER_TINY_STEPS
         guidance = pretrained.GAFFER_TINY_GUIDANCE if guidance is None else guidance
         average = average or pretrained.GAFFER_TINY_AVERAGE_SAMPLES
+        mirror = pretrained.GAFFER_TINY_MIRROR_AVERAGE if mirror is None else mirror
     return SamplingConfig(
         num_inference_steps=steps or 50,
         guidance_scale=3.0 if guidance is None else guidance,
         scheduler=args.scheduler,
         average_samples=average or 1,
+        mirror_average=bool(mirror),
     )
 
 
@@ -597,6 +614,7 @@ def _demo(args: argparse.Namespace) -> int:
         num_inference_steps=args.steps,
         guidance_scale=args.guidance,
         average_samples=args.average_samples,
+        mirror_average=args.mirror_average,
         frames=args.frames,
         fps=args.fps,
         seed=args.seed,

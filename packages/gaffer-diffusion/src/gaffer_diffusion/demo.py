@@ -89,6 +89,8 @@ class DemoConfig:
             no unconditional branch), else 3 (the paper's).
         average_samples: samples averaged per image (`SamplingConfig.average_samples`); None: the
             model's suggestion, else 1.
+        mirror_average: average with the mirrored input (`SamplingConfig.mirror_average`); None:
+            the model's suggestion, else off.
         frames: turntable frames (0: no turntable).
         fps: turntable GIF frames per second.
         seed: the initial-noise seed of every image.
@@ -110,6 +112,7 @@ class DemoConfig:
     num_inference_steps: int | None = None
     guidance_scale: float | None = None
     average_samples: int | None = None
+    mirror_average: bool | None = None
     frames: int = 24
     fps: float = 12.0
     seed: int = 0
@@ -176,6 +179,7 @@ class LoadedModel:
         suggested_steps: the denoising steps the model was evaluated with, if known.
         suggested_guidance: the guidance scale the model was evaluated with, if known.
         suggested_average: the samples averaged per image it was evaluated with, if known.
+        suggested_mirror: whether it was evaluated with mirror averaging, if known.
     """
 
     model: NeuralGafferModel
@@ -184,6 +188,7 @@ class LoadedModel:
     suggested_steps: int | None = None
     suggested_guidance: float | None = None
     suggested_average: int | None = None
+    suggested_mirror: bool | None = None
 
 
 def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> LoadedModel:
@@ -225,6 +230,7 @@ def sampling_for(
     num_inference_steps: int | None,
     guidance_scale: float | None,
     average_samples: int | None = None,
+    mirror_average: bool | None = None,
 ) -> SamplingConfig:
     """DDIM settings: the given values, else the model's suggestion, else the paper's (50, 3).
 
@@ -241,8 +247,13 @@ def sampling_for(
             DEFAULT_GUIDANCE if loaded.suggested_guidance is None else loaded.suggested_guidance
         )
     average = average_samples or loaded.suggested_average or 1
+    if mirror_average is None:
+        mirror_average = bool(loaded.suggested_mirror)
     return SamplingConfig(
-        num_inference_steps=steps, guidance_scale=guidance_scale, average_samples=average
+        num_inference_steps=steps,
+        guidance_scale=guidance_scale,
+        average_samples=average,
+        mirror_average=mirror_average,
     )
 
 
@@ -263,6 +274,7 @@ def _load_gaffer_tiny(flag: str) -> LoadedModel:
         suggested_steps=pretrained.GAFFER_TINY_STEPS,
         suggested_guidance=pretrained.GAFFER_TINY_GUIDANCE,
         suggested_average=pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
+        suggested_mirror=pretrained.GAFFER_TINY_MIRROR_AVERAGE,
     )
 
 
@@ -636,7 +648,11 @@ def run_demo(
     t_loaded = time.perf_counter()
     size = loaded.model.config.resolution
     sampling = sampling_for(
-        loaded, config.num_inference_steps, config.guidance_scale, config.average_samples
+        loaded,
+        config.num_inference_steps,
+        config.guidance_scale,
+        config.average_samples,
+        config.mirror_average,
     )
 
     example_root = (
@@ -858,6 +874,7 @@ def _settings(
         "num_inference_steps": sampling.num_inference_steps,
         "guidance_scale": sampling.guidance_scale,
         "average_samples": sampling.average_samples,
+        "mirror_average": sampling.mirror_average,
         "seed": config.seed,
         "batch_size": config.batch_size,
         "lighting_encoding": f"gaffer-envmap, compat={config.compat!r}",

@@ -646,6 +646,7 @@ def evaluate_dataset(
         "num_inference_steps": s.num_inference_steps,
         "guidance_scale": s.guidance_scale,
         "average_samples": s.average_samples,
+        "mirror_average": s.mirror_average,
         "latent_mode": s.latent_mode,
         "seed": config.seed,
         "batch_size": config.batch_size,

@@ -25,6 +25,9 @@ GAFFER_TINY_GUIDANCE = 1.0
 GAFFER_TINY_AVERAGE_SAMPLES = 4
 """Samples averaged per output (`SamplingConfig.average_samples`) in gaffer-tiny's suggested setting."""
 
+GAFFER_TINY_MIRROR_AVERAGE = False
+"""Whether gaffer-tiny's suggested setting averages with the mirrored input (`SamplingConfig.mirror_average`)."""
+
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
     "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
@@ -72,6 +75,7 @@ def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
 __all__ = [
     "GAFFER_TINY_AVERAGE_SAMPLES",
     "GAFFER_TINY_GUIDANCE",
+    "GAFFER_TINY_MIRROR_AVERAGE",
     "GAFFER_TINY_STEPS",
     "example_dataset_path",
     "gaffer_tiny_path",

@@ -37,6 +37,11 @@ class SamplingConfig:
             t = T this is a Monte-Carlo estimate of the posterior mean E[target | conditions], the
             prediction with the least expected squared error (best PSNR), at K times the cost; the
             samples themselves are sharper but each carries its own noise. Needs `eta` = 0. (1).
+        mirror_average: also relight the input flipped left-right under the lighting mirrored in
+            camera x (`gaffer_envmap.augment.mirror_camera_x`), flip that back and return the mean
+            of the two: relighting commutes with the mirror, so the two predictions err
+            differently and their mean errs less (test-time augmentation; 2x the cost; only
+            through `RelightPipeline.__call__`). Off by default (the paper does not do it).
 
     Raises:
         ConfigError: on out-of-range values.
@@ -50,6 +55,7 @@ class SamplingConfig:
     latent_mode: LatentMode = "mode"
     nonfinite: NonFinitePolicy = "raise"
     average_samples: int = 1
+    mirror_average: bool = False
 
     def __post_init__(self) -> None:
         if (

@@ -26,6 +26,7 @@ from torch import Tensor
 from gaffer_diffusion.conditioning import (
     EncodedConditions,
     LatentMode,
+    LightingMaps,
     RelightingConditions,
     encode_conditions,
 )
@@ -297,9 +298,14 @@ class RelightPipeline:
         """Encode `conditions` and sample (see `encode` and `sample`).
 
         With `conditions.mask`, the output keeps the input outside the object (see
-        `RelightingConditions`); `sample` alone always returns the model's full frame.
+        `RelightingConditions`), and with `sampling.mirror_average` it is the mean of the
+        prediction and the mirrored input's prediction flipped back; `sample` alone does neither.
         """
         sampling = sampling or SamplingConfig()
+        if sampling.mirror_average:
+            return self._mirror_mean(
+                conditions, sampling, num_images_per_condition, generator, seeds, callback
+            )
         enc_gen = generator if isinstance(generator, torch.Generator) else None
         encoded = self.encode(conditions, latent_mode=sampling.latent_mode, generator=enc_gen)
         out = self.sample(
@@ -317,6 +323,42 @@ class RelightPipeline:
         m = conditions.mask.to(out.images.device, torch.float32).repeat_interleave(k, dim=0)
         # lerp keeps NaN from the model, so the finiteness checks downstream still see it
         return dataclasses.replace(out, images=torch.lerp(x, out.images, m))
+
+    def _mirror_mean(
+        self,
+        conditions: RelightingConditions,
+        sampling: SamplingConfig,
+        num_images_per_condition: int,
+        generator: GeneratorArg,
+        seeds: Sequence[int] | None,
+        callback: StepCallback | None,
+    ) -> RelightOutput:
+        """`SamplingConfig.mirror_average`: the B items and their mirrors in one batch of 2B."""
+        from gaffer_envmap.augment import mirror_camera_x
+
+        c = conditions
+        both = RelightingConditions(
+            image=torch.cat([c.image, c.image.flip(-1)]),
+            lighting=LightingMaps(
+                ldr=torch.cat([c.lighting.ldr, mirror_camera_x(c.lighting.ldr)]),
+                hdr=torch.cat([c.lighting.hdr, mirror_camera_x(c.lighting.hdr)]),
+            ),
+            mask=None if c.mask is None else torch.cat([c.mask, c.mask.flip(-1)]),
+        )
+        if not (generator is None or isinstance(generator, torch.Generator)):
+            generator = list(generator) * 2  # the mirrors draw next from the same generators
+        out = self(
+            both,
+            dataclasses.replace(sampling, mirror_average=False),
+            num_images_per_condition=num_images_per_condition,
+            generator=generator,
+            seeds=None if seeds is None else [*seeds, *seeds],
+            callback=callback,
+        )
+        n = out.images.shape[0] // 2
+        images = (out.images[:n] + out.images[n:].flip(-1)) / 2.0
+        retried = tuple(sorted({i % n for i in out.retried_in_fp32}))
+        return RelightOutput(images=images, latents=out.latents[:n], retried_in_fp32=retried)
 
     def _fp32_model(self) -> NeuralGafferModel:
         if self.dtype == torch.float32:
