@@ -366,7 +366,7 @@ def run_steps(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
             }
             rows.append(row)
             common.log(
-                f"  {sched:<12} {n:>3} steps: {row['s_per_image'] * 1000:.1f} ms/img, "
+                f"  {rows[-1]['scheduler']:<12} {n:>3} steps: {row['s_per_image'] * 1000:.1f} ms/img, "
                 f"PSNR {row['psnr_vs_ddim50']}, {perceptual.name} {row['perceptual_vs_ddim50']}"
             )
     torch.set_num_threads(threads_before)
@@ -453,34 +453,39 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
     pairs = dataset_pairs(example_dataset_path(), envmap_dirs=[hdri_dir])
     common.log(f"{NAME_QUALITY}: gaffer-tiny, {len(pairs)} held-out pairs, {schedulers} x {steps}")
     rows, baseline = [], None
-    for sched in schedulers:
-        for n in steps:
-            cfg = EvaluationConfig(
-                sampling=SamplingConfig(
-                    num_inference_steps=n, scheduler=sched, guidance_scale=GAFFER_TINY_GUIDANCE
-                ),
-                batch_size=16,
-                baselines=baseline is None,
-            )
-            result = evaluate_dataset(pipe, pairs, cfg, perceptual=None)
-            if baseline is None:
-                baseline = result.baseline
-            r = result.report
-            rows.append(
-                {
-                    "scheduler": sched,
-                    "steps": n,
-                    # sampling + reading + scoring, per pair; one run (the sweep is the repetition)
-                    "s_per_image": round(result.seconds / len(pairs), 5),
-                    "psnr": round(r.mean_raw.psnr, 3),
-                    "psnr_aligned": round(r.mean_aligned_image.psnr, 3),
-                    "ssim": round(r.mean_raw.ssim, 4),
-                }
-            )
-            common.log(
-                f"  {sched:<12} {n:>3} steps: {rows[-1]['s_per_image'] * 1000:.1f} ms/img, "
-                f"PSNR {rows[-1]['psnr']} (aligned {rows[-1]['psnr_aligned']})"
-            )
+    # each scheduler over `steps`, then DDIM with mirror averaging (2 UNet passes per step)
+    runs = [(sched, n, False) for sched in schedulers for n in steps]
+    runs += [("ddim", n, True) for n in steps if n <= 10]
+    for sched, n, mirror in runs:
+        cfg = EvaluationConfig(
+            sampling=SamplingConfig(
+                num_inference_steps=n,
+                scheduler=sched,
+                guidance_scale=GAFFER_TINY_GUIDANCE,
+                mirror_average=mirror,
+            ),
+            batch_size=16,
+            baselines=baseline is None,
+        )
+        result = evaluate_dataset(pipe, pairs, cfg, perceptual=None)
+        if baseline is None:
+            baseline = result.baseline
+        r = result.report
+        rows.append(
+            {
+                "scheduler": sched + ("+mirror" if mirror else ""),
+                "steps": n,
+                # sampling + reading + scoring, per pair; one run (the sweep is the repetition)
+                "s_per_image": round(result.seconds / len(pairs), 5),
+                "psnr": round(r.mean_raw.psnr, 3),
+                "psnr_aligned": round(r.mean_aligned_image.psnr, 3),
+                "ssim": round(r.mean_raw.ssim, 4),
+            }
+        )
+        common.log(
+            f"  {rows[-1]['scheduler']:<12} {n:>3} steps: {rows[-1]['s_per_image'] * 1000:.1f} ms/img, "
+            f"PSNR {rows[-1]['psnr']} (aligned {rows[-1]['psnr_aligned']})"
+        )
     torch.set_num_threads(threads_before)
     assert baseline is not None
     base = {
@@ -499,6 +504,8 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
             ),
             "pairs": len(pairs),
             "guidance_scale": GAFFER_TINY_GUIDANCE,
+            "background": "input kept outside its alpha (EvaluationConfig.keep_background)",
+            "mirror": "ddim+mirror rows: SamplingConfig.mirror_average (2 UNet passes per step)",
             "seed": 0,
             "torch_threads": 1,
             "timing": "one evaluate_dataset call per row: sampling + PNG reading + scoring, per pair",
@@ -518,13 +525,20 @@ def quality_figure(rows: list[dict[str, Any]], base: dict[str, float], meta: dic
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.4))
-    colors = {"ddim": "tab:blue", "dpmsolver++": "tab:orange", "unipc": "tab:green"}
+    colors = {
+        "ddim": "tab:blue",
+        "dpmsolver++": "tab:orange",
+        "unipc": "tab:green",
+        "ddim+mirror": "tab:purple",
+    }
     for ax, key, label in (
         (axes[0], "psnr", "PSNR vs ground truth (dB)"),
         (axes[1], "psnr_aligned", "channel-aligned PSNR (dB)"),
     ):
         for sched, color in colors.items():
             rs = [r for r in rows if r["scheduler"] == sched]
+            if not rs:
+                continue
             t = [1000 * r["s_per_image"] for r in rs]
             ax.plot(t, [r[key] for r in rs], "o-", color=color, label=f"gaffer-tiny, {sched}")
             for r, x in zip(rs, t, strict=True):

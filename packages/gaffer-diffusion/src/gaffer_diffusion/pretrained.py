@@ -22,10 +22,10 @@ GAFFER_TINY_STEPS = 1
 GAFFER_TINY_GUIDANCE = 1.0
 """Classifier-free guidance scale gaffer-tiny was evaluated with."""
 
-GAFFER_TINY_AVERAGE_SAMPLES = 4
+GAFFER_TINY_AVERAGE_SAMPLES = 1
 """Samples averaged per output (`SamplingConfig.average_samples`) in gaffer-tiny's suggested setting."""
 
-GAFFER_TINY_MIRROR_AVERAGE = False
+GAFFER_TINY_MIRROR_AVERAGE = True
 """Whether gaffer-tiny's suggested setting averages with the mirrored input (`SamplingConfig.mirror_average`)."""
 
 _HOW = (
