@@ -244,3 +244,36 @@ def test_scan_envmaps(tmp_path) -> None:
 def test_augment_config_validation() -> None:
     with pytest.raises(ConfigError):
         AugmentConfig(yaw_steps=0)
+
+
+def test_an_object_locked_by_another_run_is_left_to_it(tmp_path, monkeypatch) -> None:
+    fcntl = pytest.importorskip("fcntl")
+    from gaffer_data.dataset.reader import MANIFEST_NAME, OBJECTS_DIR
+    from gaffer_data.render import runner
+
+    source = tmp_path / "o.glb"
+    source.write_bytes(b"not rendered here")
+    plan = plan_for("obj", str(source), _pool(), tiny_config())
+    out, calls = tmp_path / "out", []
+
+    def fake_render(plan, root, *args):  # the Blender attempts, which need the lock
+        calls.append(root)
+        return runner.ObjectResult(object_id=plan.object_id, failure=None, image_seconds=())
+
+    monkeypatch.setattr(runner, "_render_locked", fake_render)
+    options = runner.RunOptions(progress=False)
+    lock = out / runner.LOCKS_DIR / "obj.lock"
+    lock.parent.mkdir(parents=True)
+    with open(lock, "a+b") as other_run:  # another process holds the object's lock
+        fcntl.flock(other_run, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        busy = runner.render_object(plan, out, options, threads=1)
+    assert busy.failure is not None and busy.failure.attempts == 0
+    assert busy.failure.reason.startswith("busy") and "obj.lock" in busy.failure.reason
+    assert calls == []  # nothing touched the other run's folder
+    assert runner.render_object(plan, out, options, threads=1).failure is None  # lock released
+    assert len(calls) == 1
+    # finished by another run since this one planned it: not rendered again
+    (out / OBJECTS_DIR / "obj").mkdir(parents=True)
+    (out / OBJECTS_DIR / "obj" / MANIFEST_NAME).write_text("{}")
+    assert runner.render_object(plan, out, options, threads=1).failure is None
+    assert len(calls) == 1

@@ -302,3 +302,38 @@ def test_the_worker_process_never_imports_torch(inputs, tmp_path: Path) -> None:
     line = next(x for x in result.stdout.splitlines() if x.startswith("CHECK"))
     assert line == "CHECK 0 True []", result.stderr[-2000:]
     assert (tmp_path / plan.views[0].lit[0].exr).is_file()
+
+
+def test_two_runs_into_one_folder_share_the_objects(inputs, tmp_path: Path, caplog) -> None:
+    import logging
+    import threading
+
+    pytest.importorskip("fcntl")
+    objects, envmaps = inputs
+    todo = [(n, objects / f"{n}.obj") for n in ("cube", "sphere")]
+    summaries: list = []
+
+    def run() -> None:
+        summaries.append(
+            render_dataset(
+                todo,
+                scan_envmaps(envmaps),
+                tmp_path,
+                tiny_config(lightings=2),
+                RunOptions(workers=1, retries=0, progress=False),
+            )
+        )
+
+    caplog.set_level(logging.WARNING, logger="gaffer_data")
+    threads = [threading.Thread(target=run) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(summaries) == 2
+    # every failure is a "busy" hand-over, never a clash inside an object's folder
+    assert all(f.reason.startswith("busy") for s in summaries for f in s.failed)
+    assert not [r for r in caplog.records if "attempt" in r.getMessage()]
+    for name, _ in todo:
+        read_object(tmp_path / "objects" / name)  # complete and valid
+    assert [o.object_id for o in open_dataset(tmp_path).iter_objects()] == ["cube", "sphere"]

@@ -5,9 +5,16 @@ after every payload was written atomically and hashed. A rerun skips complete ob
 files of killed writers, keeps the finished images of an interrupted object (its plan is deterministic)
 and renders only what is missing. A worker that fails is retried; an object that still fails is recorded
 in `dataset.json` and `failures.jsonl`, and the run goes on.
+
+Concurrent runs into one folder (the same command started twice, or shards sharing storage) share the
+work: each object is rendered under an exclusive lock (`.locks/<id>.lock`, POSIX `flock`), an object
+locked by another process is left to it (recorded as "busy", picked up by a rerun if that process dies),
+and one finished meanwhile is not rendered again. Without the lock, one run's clean-up of temporaries
+would delete the other's files in flight.
 """
 
 import concurrent.futures
+import contextlib
 import dataclasses
 import json
 import logging
@@ -57,6 +64,7 @@ logger = logging.getLogger(__name__)
 
 PLAN_NAME = "_plan.json"
 FAILURES_NAME = "failures.jsonl"
+LOCKS_DIR = ".locks"
 _PAYLOAD_DIRS = ("lit", "area", "alpha", "normal", "albedo", "depth", ".scratch")
 
 
@@ -466,6 +474,58 @@ def render_object(
                 reason="source file is missing",
             )
         )
+    with _object_lock(out, plan.object_id) as held:
+        if not held:
+            return result(
+                FailureRecord(
+                    object_id=plan.object_id,
+                    source=plan.source,
+                    attempts=0,
+                    reason="busy: another gaffer-data process is rendering this object (its lock "
+                    f"{out / LOCKS_DIR / (plan.object_id + '.lock')} is held); left to it, rerun to "
+                    "pick it up if that process stopped",
+                )
+            )
+        if (root / MANIFEST_NAME).is_file():  # finished by another process since this run started
+            return result(None)
+        return _render_locked(plan, root, source, options, threads, record, result)
+
+
+@contextlib.contextmanager
+def _object_lock(out: Path, object_id: str) -> Iterator[bool]:
+    """Hold an exclusive, non-blocking `flock` on the object's lock file; yield whether it was got.
+
+    Released when the process exits however it exits. Without `fcntl` (Windows) there is no lock.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield True
+        return
+    path = out / LOCKS_DIR / f"{object_id}.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _render_locked(
+    plan: ObjectPlan,
+    root: Path,
+    source: Path,
+    options: RunOptions,
+    threads: int,
+    record: Callable[[float], None],
+    result: Callable[[FailureRecord | None], ObjectResult],
+) -> ObjectResult:
+    """`render_object`'s attempts, with the object's lock held."""
     source_sha = sha256_file(source)
     reason = ""
     for attempt in range(1, options.retries + 2):
