@@ -135,51 +135,63 @@ class EncodedConditions:
         hdr_latents: `[B, 4, h, w]` raw latent of the HDR map E_H.
         ldr_latents: `[B, 4, h, w]` raw latent of the LDR map E_L.
         clip_embeds: `[B, 1, D]` CLIP image embedding of the input (the cross-attention context).
+        hints: `[B, 12, h, w]` radiance hints (`gaffer_diffusion.hints`) for a model with
+            `ModelConfig.hints`, else None.
     """
 
     image_latents: Float[Tensor, "B 4 h w"]
     hdr_latents: Float[Tensor, "B 4 h w"]
     ldr_latents: Float[Tensor, "B 4 h w"]
     clip_embeds: Float[Tensor, "B 1 D"]
+    hints: Float[Tensor, "B K h w"] | None = None
 
     @property
     def batch_size(self) -> int:
         """B."""
         return int(self.image_latents.shape[0])
 
-    def concat_latents(self) -> Float[Tensor, "B 12 h w"]:
-        """`[E(x), E(E_H), E(E_L)]` along channels, the order the UNet was trained with."""
-        return torch.cat([self.image_latents, self.hdr_latents, self.ldr_latents], dim=1)
+    def concat_latents(self) -> Float[Tensor, "B C h w"]:
+        """`[E(x), E(E_H), E(E_L)]` (+ the hints) along channels, the order the UNet was trained with."""
+        parts = [self.image_latents, self.hdr_latents, self.ldr_latents]
+        if self.hints is not None:
+            parts.append(self.hints)
+        return torch.cat(parts, dim=1)
+
+    @staticmethod
+    def cat(parts: "Sequence[EncodedConditions]") -> "EncodedConditions":
+        """The items of several `EncodedConditions` in one batch, in order."""
+        hints = [p.hints for p in parts]
+        return EncodedConditions(
+            image_latents=torch.cat([p.image_latents for p in parts]),
+            hdr_latents=torch.cat([p.hdr_latents for p in parts]),
+            ldr_latents=torch.cat([p.ldr_latents for p in parts]),
+            clip_embeds=torch.cat([p.clip_embeds for p in parts]),
+            hints=None if any(h is None for h in hints) else torch.cat(hints),  # type: ignore[arg-type]
+        )
+
+    def _map(self, fn: Any) -> "EncodedConditions":
+        return EncodedConditions(
+            image_latents=fn(self.image_latents),
+            hdr_latents=fn(self.hdr_latents),
+            ldr_latents=fn(self.ldr_latents),
+            clip_embeds=fn(self.clip_embeds),
+            hints=None if self.hints is None else fn(self.hints),
+        )
 
     def repeat_interleave(self, repeats: int) -> "EncodedConditions":
         """Each item repeated `repeats` times in place (item0, item0, item1, ...): several seeds."""
-        return EncodedConditions(
-            image_latents=self.image_latents.repeat_interleave(repeats, dim=0),
-            hdr_latents=self.hdr_latents.repeat_interleave(repeats, dim=0),
-            ldr_latents=self.ldr_latents.repeat_interleave(repeats, dim=0),
-            clip_embeds=self.clip_embeds.repeat_interleave(repeats, dim=0),
-        )
+        return self._map(lambda t: t.repeat_interleave(repeats, dim=0))
 
     def select(self, indices: Tensor | list[int]) -> "EncodedConditions":
         """The items at `indices` (a subset of the batch)."""
         idx = torch.as_tensor(indices, dtype=torch.long, device=self.image_latents.device)
-        return EncodedConditions(
-            image_latents=self.image_latents[idx],
-            hdr_latents=self.hdr_latents[idx],
-            ldr_latents=self.ldr_latents[idx],
-            clip_embeds=self.clip_embeds[idx],
-        )
+        return self._map(lambda t: t[idx])
 
     def to(
         self, device: torch.device | str | None = None, dtype: torch.dtype | None = None
     ) -> "EncodedConditions":
         """A copy on another device and/or dtype."""
-        return EncodedConditions(
-            image_latents=self.image_latents.to(device=device, dtype=dtype),
-            hdr_latents=self.hdr_latents.to(device=device, dtype=dtype),
-            ldr_latents=self.ldr_latents.to(device=device, dtype=dtype),
-            clip_embeds=self.clip_embeds.to(device=device, dtype=dtype),
-        )
+        return self._map(lambda t: t.to(device=device, dtype=dtype))
 
 
 def clip_preprocess(
@@ -260,12 +272,38 @@ def encode_conditions(
         model.config.image_encoder.image_size,
     )
     clip_embeds = model.image_encoder(pixel_values=pixels).image_embeds.unsqueeze(1)  # [B, 1, D]
+    hints = None
+    if model.config.hints:
+        hints = hints_for(conditions, model.config.latent_size).to(
+            device=vae_param.device, dtype=image_latents.dtype
+        )
     return EncodedConditions(
         image_latents=image_latents,
         hdr_latents=hdr_latents,
         ldr_latents=ldr_latents,
         clip_embeds=clip_embeds,
+        hints=hints,
     )
+
+
+def object_mask_of(image: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 1 H W"]:
+    """A stand-in object mask for an image on white without its alpha: pixels not pure white."""
+    return (image.amin(dim=1, keepdim=True) < 254.5 / 255.0).float()
+
+
+def hints_for(conditions: RelightingConditions, size: int) -> Float[Tensor, "B 12 s s"]:
+    """Radiance hints (`gaffer_diffusion.hints.relighting_hints`) of `conditions` at `size` px.
+
+    The mask is `conditions.mask` (the input's alpha), else the pixels of the input that are not
+    pure white; latent models get the hints area-downsampled to their latent size.
+    """
+    from gaffer_diffusion.hints import relighting_hints
+
+    mask = conditions.mask if conditions.mask is not None else object_mask_of(conditions.image)
+    hints = relighting_hints(mask.float(), conditions.lighting.ldr, conditions.lighting.hdr)
+    if hints.shape[-1] != size:
+        hints = F.interpolate(hints, size=(size, size), mode="area")
+    return hints
 
 
 def lighting_from_envmap(

@@ -14,9 +14,10 @@ Presets (`get_preset`):
   downsampling factor of 8, a CLIP vision tower with a projection), 64x64 images: CPU tests run in
   milliseconds per forward.
 - `"gaffer-tiny"`: the shipped small model we train ourselves on CPU (`gaffer_diffusion.pretrained`):
-  pixel space (`VAEConfig(kind="pixel")`, 64x64 "latents" `[R, G, B, luminance]`), a ~3M-parameter UNet
-  with attention at 16x16, v-prediction sampled with "trailing" timesteps, diffusing the residual
-  target - input (`ModelConfig.residual`), and the `"tiny"` CLIP tower.
+  pixel space (`VAEConfig(kind="pixel")`, 128x128 "latents" `[R, G, B, luminance]`), a ~3M-parameter
+  UNet with attention at 16x16, v-prediction sampled with "trailing" timesteps, diffusing the residual
+  target - input (`ModelConfig.residual`), radiance hints (`ModelConfig.hints`), and the `"tiny"` CLIP
+  tower.
 """
 
 import dataclasses
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.hints import HINT_CHANNELS
 
 if TYPE_CHECKING:
     from gaffer_diffusion.models.model import NeuralGafferModel
@@ -274,6 +276,11 @@ class ModelConfig:
             latent. True (gaffer-tiny): the target's latent minus the input image's latent, so the
             model only has to learn what the lighting changes; sampling adds the input's latent back
             before decoding (`NeuralGafferModel.diffusion_target` / `decodable_latents`).
+        hints: False (the paper, the released checkpoint): the UNet input is `[z_t, E(x), E(E_H),
+            E(E_L)]`. True (gaffer-tiny): 12 radiance-hint channels follow (`gaffer_diffusion.hints`,
+            after DiLightNet): a white diffuse and two glossy renders of the input's silhouette
+            normals under the target light, and the normals, computed from the input's mask and the
+            lighting maps on every path; `unet.in_channels` is then 16 + 12.
 
     Raises:
         ConfigError: when the parts are inconsistent.
@@ -291,6 +298,7 @@ class ModelConfig:
     image_encoder: ImageEncoderConfig = field(default_factory=ImageEncoderConfig)
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
     residual: bool = False
+    hints: bool = False
 
     def __post_init__(self) -> None:
         factor = self.vae.downsampling_factor
@@ -304,11 +312,12 @@ class ModelConfig:
                 f"`unet.sample_size` is {self.unet.sample_size} but `resolution` {self.resolution} / "
                 f"{factor} = {self.resolution // factor}. Use `ModelConfig.with_resolution(...)`."
             )
-        expected_in = LATENT_CHANNELS * (1 + CONDITIONING_LATENTS)
+        expected_in = LATENT_CHANNELS * (1 + CONDITIONING_LATENTS) + self.hint_channels
         if self.unet.in_channels != expected_in:
+            hint_text = f" + {HINT_CHANNELS} hint channels" if self.hints else ""
             raise ConfigError(
                 f"`unet.in_channels` is {self.unet.in_channels}, expected {expected_in} "
-                "([z_t, E(image), E(HDR), E(LDR)], 4 channels each)."
+                f"([z_t, E(image), E(HDR), E(LDR)], 4 channels each{hint_text})."
             )
         if self.vae.latent_channels != LATENT_CHANNELS:
             raise ConfigError(f"`vae.latent_channels` is {self.vae.latent_channels}, expected 4.")
@@ -318,6 +327,11 @@ class ModelConfig:
                 f"`unet.cross_attention_dim` ({self.unet.cross_attention_dim}): the CLIP embedding is "
                 "the cross-attention context."
             )
+
+    @property
+    def hint_channels(self) -> int:
+        """Radiance-hint channels after the conditioning latents (0 without `hints`)."""
+        return HINT_CHANNELS if self.hints else 0
 
     @property
     def latent_size(self) -> int:
@@ -378,44 +392,50 @@ def _tiny() -> ModelConfig:
 
 
 GAFFER_TINY_CHANNELS: tuple[int, ...] = (16, 32, 64, 128)
-"""UNet channels per level of `"gaffer-tiny"` (64, 32, 16, 8 px)."""
+"""UNet channels per level of `"gaffer-tiny"` (128, 64, 32, 16 px)."""
+
+GAFFER_TINY_RESOLUTION = 128
+"""Image side of `"gaffer-tiny"` 0.3 (0.1-0.2 were 64 px)."""
 
 
 def _gaffer_tiny() -> ModelConfig:
     tiny = _tiny()
+    res = GAFFER_TINY_RESOLUTION
     return ModelConfig(
         name="gaffer-tiny",
-        resolution=64,
+        resolution=res,
         unet=UNetConfig(
-            sample_size=64,
+            sample_size=res,
+            in_channels=LATENT_CHANNELS * (1 + CONDITIONING_LATENTS) + HINT_CHANNELS,
             block_out_channels=GAFFER_TINY_CHANNELS,
             layers_per_block=1,
-            down_block_types=("DownBlock2D", "DownBlock2D", "CrossAttnDownBlock2D", "DownBlock2D"),
-            up_block_types=("UpBlock2D", "CrossAttnUpBlock2D", "UpBlock2D", "UpBlock2D"),
+            # attention only at 16x16 (and the mid block): at 32x32 it would cost more than the
+            # convolutions of the whole UNet on a CPU
+            down_block_types=("DownBlock2D", "DownBlock2D", "DownBlock2D", "CrossAttnDownBlock2D"),
+            up_block_types=("CrossAttnUpBlock2D", "UpBlock2D", "UpBlock2D", "UpBlock2D"),
             attention_head_dim=4,
             cross_attention_dim=32,
             norm_num_groups=8,
         ),
-        # scaling 5: the residual target (below) has std 0.19 on the training renders ([-1, 1]
+        # scaling 5: the residual target (below) has std ~0.2 on the training renders ([-1, 1]
         # pixels); x5 brings it to ~1, the variance the noise schedule assumes (as SD's 0.18215
-        # does for its latents). At scale 1 the x0 part is ~4% of the v target at mid t and the
-        # model learns the lighting change slowly.
-        vae=VAEConfig(kind="pixel", scaling_factor=5.0, sample_size=64),
+        # does for its latents).
+        vae=VAEConfig(kind="pixel", scaling_factor=5.0, sample_size=res),
         image_encoder=tiny.image_encoder,
         # v-prediction: with epsilon in pixel space a young model's x0 = (z - sqrt(1 - abar) eps) /
         # sqrt(abar) amplifies its noise error ~14x at the first DDIM step and samples stay noise.
-        # "trailing" spacing: sampling starts at t=999 whatever the step count ("leading" starts a
-        # 1-step sample at t=1 and a 5-step one at t=801, on pure noise the model never saw there).
-        # Zero terminal SNR: at t=999 x0 = -v exactly; with the paper's betas sqrt(abar_999) = 0.068
-        # of the starting noise stays in a 1-step sample, as large as the residual signal itself.
+        # "trailing" spacing: sampling starts at t=999 whatever the step count. Zero terminal SNR:
+        # at t=999 x0 = -v exactly, so the suggested one-step sample is the model's mean estimate.
         scheduler=SchedulerConfig(
             prediction_type="v_prediction",
             timestep_spacing="trailing",
             rescale_betas_zero_snr=True,
         ),
-        # diffuse target - input: a model that has learnt nothing yet returns the input, not noise,
-        # and its capacity goes to the lighting change (a CPU-trained model cannot waste it)
+        # diffuse target - input: a model that has learnt nothing yet returns the input, not noise
         residual=True,
+        # radiance hints (gaffer_diffusion.hints): shape and light transport a 3M-parameter model
+        # cannot learn from a few hundred CPU-rendered objects
+        hints=True,
     )
 
 

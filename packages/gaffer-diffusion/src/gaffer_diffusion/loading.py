@@ -483,14 +483,16 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
     encoder = _load_image_encoder(root / "image_encoder", how)
     sched = _scheduler_config(root, how)
     name = str(manifest.get("config", {}).get("name", "loaded"))
-    config = config_from_modules(unet, vae, encoder, sched, name=name)
-    # what is diffused is not in any module's config: only the manifest records it
-    residual = manifest.get("config", {}).get("residual", False)
-    if not isinstance(residual, bool):
-        raise CheckpointMismatchError(
-            f"{root / MANIFEST_NAME}: `config.residual` is {residual!r}; expected true or false."
-        )
-    config = dataclasses.replace(config, residual=residual)
+    # what is diffused and whether hints are fed are in no module's config: only the manifest has them
+    flags = {}
+    for key in ("residual", "hints"):
+        flags[key] = manifest.get("config", {}).get(key, False)
+        if not isinstance(flags[key], bool):
+            raise CheckpointMismatchError(
+                f"{root / MANIFEST_NAME}: `config.{key}` is {flags[key]!r}; expected true or false."
+            )
+    config = config_from_modules(unet, vae, encoder, sched, name=name, hints=flags["hints"])
+    config = dataclasses.replace(config, residual=flags["residual"])
     model = NeuralGafferModel(config=config, unet=unet.eval(), vae=vae, image_encoder=encoder)
     return LoadResult(model=model, report=report)
 

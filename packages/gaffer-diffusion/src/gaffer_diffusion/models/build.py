@@ -80,15 +80,17 @@ def config_from_modules(
     scheduler_config: dict[str, Any] | None = None,
     *,
     name: str = "loaded",
+    hints: bool = False,
 ) -> ModelConfig:
     """The `ModelConfig` that describes already-built modules (read from their own configs).
 
     Args:
-        unet: the denoiser (its `config.in_channels` must be 16).
+        unet: the denoiser (its `config.in_channels` must be 16, or 16 + 12 with `hints`).
         vae: the autoencoder.
         image_encoder: the CLIP tower.
         scheduler_config: a diffusers scheduler config dict; None for the authors' defaults.
         name: label stored in the config.
+        hints: the UNet takes radiance hints (`ModelConfig.hints`; only a manifest records it).
 
     Raises:
         ConfigError: when the modules do not fit together.
@@ -115,4 +117,5 @@ def config_from_modules(
         vae=vae_config,
         image_encoder=enc_config,
         scheduler=sched,
+        hints=hints,
     )

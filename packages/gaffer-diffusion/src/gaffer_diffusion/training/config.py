@@ -103,6 +103,12 @@ class DataConfig:
             its camera-frame lighting maps mirrored to match (`gaffer_envmap.augment.mirror_camera_x`).
             Relighting commutes with that mirror, so this doubles the views at no render cost; the
             paper does not do it (0.0, the default).
+        object_fraction: None (the paper): each render is used whole. A fraction f: every view
+            (its input and targets alike) is cropped to the square centred on its object in which
+            the object's longer side spans f of the side (`gaffer_diffusion.preprocess.
+            object_square`, the framing `prepare_object_image` gives photos), so a small model's
+            pixels go to the object. The view's camera frame is kept (the crop is small next to the
+            lighting's angular detail).
         envmap_height: environment maps are resized (solid-angle exact) to `[h, 2h]` so a batch stacks;
             the rotation to the camera frame happens later, batched on the training device.
         lighting_compat: gaffer-envmap encoding of the lighting maps.
@@ -122,6 +128,7 @@ class DataConfig:
     targets_per_sample: int = 2
     area_light_prob: float = 0.1
     mirror_prob: float = 0.0
+    object_fraction: float | None = None
     envmap_height: int = 128
     lighting_compat: LightingCompat = "default"
     max_radiance: float = 1e30
@@ -134,6 +141,11 @@ class DataConfig:
             raise ConfigError(f"`data.targets_per_sample` is {self.targets_per_sample}; need >= 1.")
         if not 0.0 <= self.area_light_prob <= 1.0:
             raise ConfigError(f"`data.area_light_prob` is {self.area_light_prob}; need [0, 1].")
+        if self.object_fraction is not None and not 0.0 < self.object_fraction <= 1.0:
+            raise ConfigError(
+                f"`data.object_fraction` is {self.object_fraction}; expected a fraction in (0, 1] "
+                "(0.8: the object's longer side spans 80% of the crop), or null for the full render."
+            )
         if not 0.0 <= self.mirror_prob <= 1.0:
             raise ConfigError(f"`data.mirror_prob` is {self.mirror_prob}; need [0, 1].")
         if self.envmap_height < 2:

@@ -52,6 +52,7 @@ from gaffer_data.dataset import (
     ViewRecord,
     read_authors_object,
 )
+from gaffer_diffusion.preprocess import load_rgba_on_white, object_square, read_alpha
 from gaffer_diffusion.training.config import DataConfig, LightingCompat
 from gaffer_diffusion.training.errors import DataError
 
@@ -148,6 +149,7 @@ class TrainBatch:
         lighting_encoded: `[B]` bool, True for items with pre-encoded lighting (None: all False).
         encoded_ldr: `[Ba, T, 3, H, W]` the pre-encoded LDR maps of the Ba other items (None: Ba = 0).
         encoded_hdr: `[Ba, T, 3, H, W]` their HDR maps (None: Ba = 0).
+        input_alphas: `[B, 1, H, W]` the inputs' object masks, or None when an item has none.
     """
 
     input_images: Float[Tensor, "B 3 H W"]
@@ -160,6 +162,7 @@ class TrainBatch:
     lighting_encoded: Tensor | None = None
     encoded_ldr: Float[Tensor, "Ba T 3 H W"] | None = None
     encoded_hdr: Float[Tensor, "Ba T 3 H W"] | None = None
+    input_alphas: Float[Tensor, "B 1 H W"] | None = None
 
     @property
     def batch_size(self) -> int:
@@ -184,6 +187,7 @@ class TrainBatch:
             lighting_encoded=self.lighting_encoded,
             encoded_ldr=None if self.encoded_ldr is None else self.encoded_ldr.pin_memory(),
             encoded_hdr=None if self.encoded_hdr is None else self.encoded_hdr.pin_memory(),
+            input_alphas=None if self.input_alphas is None else self.input_alphas.pin_memory(),
         )
 
 
@@ -209,6 +213,9 @@ def collate_items(items: Sequence[TrainItem]) -> TrainBatch:
             lighting_encoded=torch.tensor([i.lighting_encoded for i in items]) if ldr else None,
             encoded_ldr=torch.stack(ldr) if ldr else None,
             encoded_hdr=torch.stack(hdr) if hdr else None,
+            input_alphas=torch.stack([i.input_alpha for i in items])  # type: ignore[misc]
+            if items and all(i.input_alpha is not None for i in items)
+            else None,
         )
     except RuntimeError as exc:  # torch.stack on mismatched shapes
         raise DataError(
@@ -235,7 +242,10 @@ def split_object_ids(
 
 
 def load_image_on_white(
-    path: Path, size: int, alpha_path: Path | None = None
+    path: Path,
+    size: int,
+    alpha_path: Path | None = None,
+    box: tuple[int, int, int] | None = None,
 ) -> Float[Tensor, "3 S S"]:
     """An sRGB PNG with straight alpha composited on white, resized to `size` (bilinear, antialiased).
 
@@ -243,6 +253,7 @@ def load_image_on_white(
         path: RGBA (or RGB) 8-bit image.
         size: output side length.
         alpha_path: a separate 8-bit mask used when the image has no alpha channel.
+        box: square crop `(top, left, side)` (`gaffer_diffusion.preprocess.object_square`) or None.
 
     Returns:
         `[3, size, size]` float32 in [0, 1].
@@ -251,33 +262,7 @@ def load_image_on_white(
         OSError: unreadable or truncated file (PIL's errors).
         ValueError: unusable image data.
     """
-    return load_rgba_on_white(path, size, alpha_path)[0]
-
-
-def load_rgba_on_white(
-    path: Path, size: int, alpha_path: Path | None = None
-) -> tuple[Float[Tensor, "3 S S"], Float[Tensor, "1 S S"]]:
-    """`load_image_on_white` and the alpha it used, `[1, size, size]` in [0, 1], resized the same way."""
-    with Image.open(path) as im:
-        im.load()
-        rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
-        has_alpha = im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info
-    rgb, alpha = rgba[..., :3], rgba[..., 3:4]
-    if not has_alpha and alpha_path is not None:
-        with Image.open(alpha_path) as m:
-            m.load()
-            alpha = np.asarray(m.convert("L"), dtype=np.float32)[..., None] / 255.0
-        if alpha.shape[:2] != rgb.shape[:2]:
-            raise ValueError(f"mask {alpha_path} has size {alpha.shape[:2]}, image {rgb.shape[:2]}")
-    # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
-    out = torch.from_numpy(np.concatenate([rgb * alpha + (1.0 - alpha), alpha], axis=-1))
-    out = out.permute(2, 0, 1)  # [4, h, w]
-    if tuple(out.shape[1:]) != (size, size):
-        out = F.interpolate(
-            out[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
-        )[0]
-    out = out.clamp(0.0, 1.0)
-    return out[:3].contiguous(), out[3:].contiguous()
+    return load_rgba_on_white(path, size, alpha_path, box)[0]
 
 
 class _EnvmapCache:
@@ -569,13 +554,14 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         targets = [lit[i] for i in order[:t]]
         alpha = None if view.alpha is None else obj.path(view.alpha)
         size = self.resolution
-        if use_area and view.area is not None:
-            input_image, input_alpha = load_rgba_on_white(obj.path(view.area.png), size, alpha)
-        else:
-            input_png = obj.path(lit[int(order[t])].png)
-            input_image, input_alpha = load_rgba_on_white(input_png, size, alpha)
+        input_png = obj.path(view.area.png if use_area and view.area is not None else lit[int(order[t])].png)
+        box = None
+        if self.config.object_fraction is not None:
+            # one square per view (input and targets alike): the object centred, filling the frame
+            box = object_square(read_alpha(alpha or input_png), self.config.object_fraction)
+        input_image, input_alpha = load_rgba_on_white(input_png, size, alpha, box)
         target_images = torch.stack(
-            [load_image_on_white(obj.path(li.png), size, alpha) for li in targets]
+            [load_image_on_white(obj.path(li.png), size, alpha, box) for li in targets]
         )
         envmaps = torch.stack(
             [

@@ -47,6 +47,7 @@ from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training.config import ModelSource, TrainConfig
+from gaffer_diffusion.hints import relighting_hints
 from gaffer_diffusion.training.dataset import (
     KeySampler,
     RelightTrainDataset,
@@ -201,9 +202,17 @@ class _Trainer:
         ldr, hdr = batch_lighting_of(
             batch, size=res, compat=cfg.data.lighting_compat, device=dev
         )  # [BT, 3, H, W] each, camera frame, in [0, 1]
+        alphas = None
+        if m.config.hints:
+            if batch.input_alphas is None:
+                raise ConfigError(
+                    "the model takes radiance hints (`ModelConfig.hints`), which need each input's "
+                    "object mask, but this dataset's items have no alpha; train on gaffer-data renders."
+                )
+            alphas = batch.input_alphas.to(dev, non_blocking=True)  # [B, 1, H, W]
         if cfg.data.mirror_prob > 0:
-            inputs, targets, ldr, hdr = _mirror_views(
-                inputs, targets, ldr, hdr, t, cfg.data.mirror_prob, gen
+            inputs, targets, ldr, hdr, alphas = _mirror_views(
+                inputs, targets, ldr, hdr, t, cfg.data.mirror_prob, gen, alphas
             )
         with torch.no_grad():
             # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
@@ -224,7 +233,13 @@ class _Trainer:
                 m.image_encoder(pixel_values=pixels).image_embeds.float().unsqueeze(1)
             )  # [B, 1, D]
             clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
-        cond = torch.cat([image_lat, hdr_lat, ldr_lat], dim=1)  # [BT, 12, h, w]
+            parts = [image_lat, hdr_lat, ldr_lat]
+            if alphas is not None:  # radiance hints of the (possibly mirrored) inputs' masks
+                hint = relighting_hints(alphas.repeat_interleave(t, dim=0), ldr, hdr)
+                if hint.shape[-1] != image_lat.shape[-1]:
+                    hint = F.interpolate(hint, size=tuple(image_lat.shape[-2:]), mode="area")
+                parts.append(hint)
+        cond = torch.cat(parts, dim=1)  # [BT, 12 (+12 hints), h, w]
         noise = torch.randn(z0.shape, generator=gen).to(dev)
         lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up
         timesteps = torch.randint(lo, hi + 1, (n,), generator=gen).to(dev)
@@ -235,7 +250,7 @@ class _Trainer:
         abar = self.alphas_cumprod[timesteps].float().view(n, 1, 1, 1)
         z_t = abar.sqrt() * z0 + (1.0 - abar).sqrt() * noise  # forward process q(z_t | z_0)
         with self.acc.autocast():
-            # [BT, 16, h, w]  z_t + 3x4 conditioning latents
+            # [BT, 16 (+12), h, w]  z_t + 3x4 conditioning latents (+ hints)
             pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
         target = _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
         return diffusion_loss(pred.float(), target, z0, cfg.train.residual_loss_floor)
@@ -249,9 +264,10 @@ def _mirror_views(
     targets_per_view: int,
     prob: float,
     gen: torch.Generator,
-) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-    """Flip each view left-right with probability `prob`: its input, its targets and, mirrored in
-    camera x, their lighting maps (`DataConfig.mirror_prob`)."""
+    alphas: Float[Tensor, "B 1 H W"] | None = None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
+    """Flip each view left-right with probability `prob`: its input (and mask), its targets and,
+    mirrored in camera x, their lighting maps (`DataConfig.mirror_prob`)."""
     from gaffer_envmap.augment import mirror_camera_x
 
     b = inputs.shape[0]
@@ -262,6 +278,7 @@ def _mirror_views(
         torch.where(flip_target, targets.flip(-1), targets),
         torch.where(flip_target, mirror_camera_x(ldr), ldr),
         torch.where(flip_target, mirror_camera_x(hdr), hdr),
+        None if alphas is None else torch.where(flip_view.view(b, 1, 1, 1), alphas.flip(-1), alphas),
     )
 
 

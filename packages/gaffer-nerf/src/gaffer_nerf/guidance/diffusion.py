@@ -126,12 +126,7 @@ class DiffusionGuide:
                 lighting=LightingMaps(ldr=lighting.ldr[s : s + b], hdr=lighting.hdr[s : s + b]),
             )
             parts.append(self.pipeline.encode(cond))
-        enc = EncodedConditions(
-            image_latents=torch.cat([p.image_latents for p in parts]),
-            hdr_latents=torch.cat([p.hdr_latents for p in parts]),
-            ldr_latents=torch.cat([p.ldr_latents for p in parts]),
-            clip_embeds=torch.cat([p.clip_embeds for p in parts]),
-        )
+        enc = EncodedConditions.cat(parts)
         return ViewConditions(lighting=lighting, encoded=enc)
 
     @torch.no_grad()
