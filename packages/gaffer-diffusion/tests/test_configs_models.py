@@ -17,7 +17,8 @@ from gaffer_diffusion.testing import tiny_model
 def test_presets_build_and_validate() -> None:
     for name in PRESETS:
         cfg = get_preset(name)
-        assert cfg.unet.in_channels == 16
+        assert cfg.unet.in_channels == 16 + cfg.hint_channels
+        assert cfg.hint_channels == (12 if cfg.hints else 0)
         assert cfg.latent_size * cfg.vae.downsampling_factor == cfg.resolution
 
 

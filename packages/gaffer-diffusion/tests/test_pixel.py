@@ -95,8 +95,16 @@ def test_save_and_load_pixel_model(tmp_path: Path) -> None:
 
 def test_gaffer_tiny_preset_shapes() -> None:
     cfg = get_preset("gaffer-tiny")
-    assert cfg.vae.kind == "pixel" and cfg.resolution == 64 and cfg.latent_size == 64
-    assert cfg.unet.in_channels == 16 and cfg.unet.sample_size == 64
+    assert cfg.vae.kind == "pixel" and cfg.resolution == 128 and cfg.latent_size == 128
+    assert cfg.hints and cfg.unet.in_channels == 16 + 12 and cfg.unet.sample_size == 128
+    # attention only at 16x16: the last down block and the first up block (and the mid block)
+    assert cfg.unet.down_block_types == (
+        "DownBlock2D",
+        "DownBlock2D",
+        "DownBlock2D",
+        "CrossAttnDownBlock2D",
+    )
+    assert cfg.unet.up_block_types == ("CrossAttnUpBlock2D", "UpBlock2D", "UpBlock2D", "UpBlock2D")
     model = cfg.setup(seed=0)
     n = sum(p.numel() for p in model.unet.parameters())
     assert 1_000_000 < n < 6_000_000  # float32 safetensors well under 25 MB

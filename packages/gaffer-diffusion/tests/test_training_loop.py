@@ -285,6 +285,18 @@ def test_mirror_views_flip_a_view_with_its_targets_and_maps(
             assert torch.equal(out[1][k], targets[k].flip(-1) if f else targets[k])
             assert torch.equal(out[2][k], mirror_camera_x(ldr[k : k + 1])[0] if f else ldr[k])
             assert torch.equal(out[3][k], mirror_camera_x(hdr[k : k + 1])[0] if f else hdr[k])
+    assert len(out) == 5 and out[4] is None  # no alphas in, none out
+    # with alphas: each mask flips with its view, under the same draws
+    alphas = (torch.rand(b, 1, 4, 8, generator=g) > 0.5).float()
+    out_a = loop_mod._mirror_views(
+        inputs, targets, ldr, hdr, t, 0.5, torch.Generator().manual_seed(1), alphas
+    )
+    assert len(out_a) == 5
+    for k in range(4):
+        assert torch.equal(out_a[k], out[k])
+    assert out_a[4] is not None and out_a[4].shape == alphas.shape
+    for i, f in enumerate(flipped):
+        assert torch.equal(out_a[4][i], alphas[i].flip(-1) if f else alphas[i])
     # training runs with it, and the probability is validated
     result = train(
         _config(tmp_path / "mirror", data_root, data={"mirror_prob": 0.5}, train={"max_steps": 2})

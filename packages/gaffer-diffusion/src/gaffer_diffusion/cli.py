@@ -88,8 +88,9 @@ def _parser() -> argparse.ArgumentParser:
     light.add_argument(
         "--compat",
         choices=("neural-gaffer", "default"),
-        default="neural-gaffer",
-        help="lighting encoding; 'neural-gaffer' matches the released checkpoint (default)",
+        default=None,
+        help="lighting encoding; 'neural-gaffer' matches the released checkpoint (the default with "
+        "--checkpoint); without one, gaffer-tiny's own ('default')",
     )
     light.add_argument(
         "--sanitize",
@@ -132,7 +133,11 @@ def _parser() -> argparse.ArgumentParser:
     ds.add_argument(
         "--dataset", type=Path, help="gaffer-data render folder (gaffer-data render --out)"
     )
-    ds.add_argument("--checkpoint", type=Path, help="our model folder or checkpoint-80000/")
+    ds.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="our model folder or checkpoint-80000/ (default: the shipped gaffer-tiny)",
+    )
     ds.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
     ds.add_argument(
         "--envmaps", type=Path, help="where the dataset's env maps are now, if they moved"
@@ -145,7 +150,20 @@ def _parser() -> argparse.ArgumentParser:
     )
     ds.add_argument("--limit", type=int, help="evaluate only the first N pairs")
     ds.add_argument("--save-predictions", type=Path, help="write every prediction PNG here")
-    ds.add_argument("--compat", choices=("neural-gaffer", "default"), default="neural-gaffer")
+    ds.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding (default: 'neural-gaffer' for a --checkpoint, gaffer-tiny's own "
+        "'default' without one)",
+    )
+    ds.add_argument(
+        "--object-fraction",
+        type=float,
+        default=None,
+        help="crop each view around its object, which then spans this fraction of the side "
+        "(default: the whole render for a --checkpoint; gaffer-tiny: 0.75, as it was trained)",
+    )
     _add_sampling_args(ds)
     fo = e.add_argument_group("two folders of images")
     fo.add_argument("--pred", type=Path, help="predicted images")
@@ -223,6 +241,14 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--preset", choices=PRESETS, default="tiny")
     i.add_argument("--seed", type=int, default=0)
     i.add_argument("--out", type=Path, required=True)
+
+    x = sub.add_parser(
+        "export",
+        help="write a training checkpoint (its EMA weights) as a model folder for evaluate/relight",
+    )
+    x.add_argument("checkpoint", type=Path, help="a checkpoint-NNNNNNNN/ folder of a training run")
+    x.add_argument("--out", type=Path, required=True, help="destination model folder")
+    x.add_argument("--raw", action="store_true", help="the trained weights instead of the EMA")
 
     t = sub.add_parser("train", help="train the UNet on gaffer-data renders (extra [train])")
     t.add_argument("--config", type=Path, required=True, help="training config JSON (see configs/)")
@@ -318,7 +344,16 @@ def _envmap_lighting(
     env = read_envmap(envmap, sanitize=args.sanitize)
     n = max(frames, 1)
     spin = torch.arange(n, dtype=torch.float64) * (360.0 / n) if frames > 1 else 0.0
-    return lighting_from_envmap(env, [pose] * n, size=size, compat=args.compat, spin_deg=spin)
+    return lighting_from_envmap(env, [pose] * n, size=size, compat=_compat(args), spin_deg=spin)
+
+
+def _compat(args: argparse.Namespace) -> Any:
+    """`--compat`, else the model's own encoding: gaffer-tiny's without `--checkpoint`."""
+    if args.compat is not None:
+        return args.compat
+    if getattr(args, "checkpoint", None) is None:
+        return pretrained.GAFFER_TINY_COMPAT
+    return "neural-gaffer"
 
 
 def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
@@ -507,6 +542,16 @@ def _perceptual_arg(args: argparse.Namespace) -> Any:
         raise InputValueError(str(exc)) from exc
 
 
+def _object_fraction(args: argparse.Namespace) -> float | None:
+    if args.object_fraction is not None:
+        if not 0.0 < args.object_fraction <= 1.0:
+            raise ConfigError(
+                f"`--object-fraction` is {args.object_fraction}; pass a fraction in (0, 1], e.g. 0.75."
+            )
+        return float(args.object_fraction)
+    return pretrained.GAFFER_TINY_OBJECT_FRACTION if args.checkpoint is None else None
+
+
 def _evaluate(args: argparse.Namespace) -> int:
     folders = args.pred is not None or args.gt is not None
     if args.dataset is not None and folders:
@@ -526,11 +571,6 @@ def _evaluate(args: argparse.Namespace) -> int:
 def _evaluate_dataset(args: argparse.Namespace) -> int:
     from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
 
-    if args.checkpoint is None:
-        raise ConfigError(
-            "`--dataset` needs `--checkpoint CKPT` (our model folder, or the authors' "
-            "checkpoint-80000/ with `--base-model DIR`)."
-        )
     if args.batch_size < 1:
         raise ConfigError(f"`--batch-size` is {args.batch_size}; expected >= 1.")
     pairs = dataset_pairs(
@@ -546,14 +586,15 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
         sampling=_sampling(args),
         seed=args.seed,
         batch_size=args.batch_size,
-        compat=args.compat,
+        compat=_compat(args),
         predictions_dir=args.save_predictions,
         progress=True,
         keep_background=not args.full_frame,
+        object_fraction=_object_fraction(args),
     )
     settings = {
         "dataset": str(args.dataset),
-        "checkpoint": str(args.checkpoint),
+        "checkpoint": "gaffer-tiny (shipped)" if args.checkpoint is None else str(args.checkpoint),
         "base_model": None if args.base_model is None else str(args.base_model),
         "input_lighting": args.input_lighting,
     }
@@ -563,7 +604,7 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
     if args.markdown:
         args.markdown.write_text(result.to_markdown() + "\n")
     print(result.to_markdown())
-    print(f"\n{len(pairs)} pairs in {result.seconds:.1f} s")
+    print(f"\n{len(pairs)} pairs in {result.seconds:.1f} s: {result.summary()}")
     return 0
 
 
@@ -628,8 +669,7 @@ def _demo(args: argparse.Namespace) -> int:
     print(
         f"relit {result.images} images in {result.seconds:.1f} s; wrote {result.report_html}, "
         f"{result.metrics_json}{gif} and the PNGs under {result.out}\n"
-        f"mean PSNR {result.mean_relit.psnr:.2f} dB relit vs {result.mean_input.psnr:.2f} dB for "
-        "the unrelit input"
+        f"{result.summary}"
     )
     return 0
 
@@ -638,6 +678,21 @@ def _init_random(args: argparse.Namespace) -> int:
     model = get_preset(args.preset).setup(seed=args.seed)
     save_pretrained(model, args.out)
     print(f"wrote a random-weight {args.preset} model to {args.out}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    try:
+        from gaffer_diffusion.training.loop import load_checkpoint_model
+    except ImportError as exc:
+        raise MissingDependencyError(
+            f'Exporting needs the train extra ({exc.name} is missing): pip install "gaffer-diffusion[train]"'
+        ) from exc
+    if args.out.exists() and any(args.out.iterdir()):
+        raise ConfigError(f"`--out` {args.out} exists and is not empty; pass a new folder.")
+    model = load_checkpoint_model(args.checkpoint, use_ema=not args.raw)
+    out = save_pretrained(model, args.out)
+    print(f"wrote {'trained' if args.raw else 'EMA'} weights of {args.checkpoint} to {out}")
     return 0
 
 
@@ -674,6 +729,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _init_random(args)
             case "train":
                 return _train(args)
+            case "export":
+                return _export(args)
     except GafferDiffusionError as exc:
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
         return 2

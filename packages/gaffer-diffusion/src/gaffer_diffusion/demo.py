@@ -53,7 +53,13 @@ from gaffer_diffusion.evaluation import (
     quantize_8bit,
 )
 from gaffer_diffusion.loading import MANIFEST_NAME, load_pretrained
-from gaffer_diffusion.metrics import ImageScores, MetricsReport, evaluate_images, load_perceptual
+from gaffer_diffusion.metrics import (
+    ImageScores,
+    MetricsReport,
+    closer_than,
+    evaluate_images,
+    load_perceptual,
+)
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.report import LightingRow, ReportContent, render_html
@@ -96,7 +102,11 @@ class DemoConfig:
         seed: the initial-noise seed of every image.
         batch_size: images per sampling call.
         device: torch device string.
-        compat: gaffer-envmap lighting encoding ("neural-gaffer": the released checkpoint's).
+        compat: gaffer-envmap lighting encoding; None: the model's own (gaffer-tiny: "default"),
+            else "neural-gaffer" (the released checkpoint's).
+        object_fraction: crop the example view around its object, which then spans this fraction
+            of the side (`gaffer_diffusion.preprocess.object_square`); None: the model's own
+            framing (gaffer-tiny: 0.75), else the whole render. 1.0 still crops to the object.
         extra_hdris: also relight under the bundled HDRIs that have no ground-truth render.
         keep_background: keep the input outside its alpha (`RelightingConditions.mask`); False:
             the model's full frame.
@@ -118,9 +128,10 @@ class DemoConfig:
     seed: int = 0
     batch_size: int = 8
     device: str = "cpu"
-    compat: CompatMode = "neural-gaffer"
+    compat: CompatMode | None = None
     extra_hdris: bool = True
     keep_background: bool = True
+    object_fraction: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.frames, int) or self.frames < 0:
@@ -137,9 +148,13 @@ class DemoConfig:
             guidance_scale=DEFAULT_GUIDANCE if self.guidance_scale is None else self.guidance_scale,
             average_samples=self.average_samples or 1,
         )
-        if self.compat not in ("neural-gaffer", "default"):
+        if self.compat not in (None, "neural-gaffer", "default"):
             raise ConfigError(
                 f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'."
+            )
+        if self.object_fraction is not None and not 0.0 < self.object_fraction <= 1.0:
+            raise ConfigError(
+                f"`object_fraction` is {self.object_fraction!r}; expected a fraction in (0, 1]."
             )
 
 
@@ -156,6 +171,7 @@ class DemoResult:
         seconds: wall time of the whole run (model loading included).
         mean_relit: mean scores of the relit images (raw).
         mean_input: mean scores of the unrelit input (raw), the first baseline.
+        summary: the headline, object-mask scores first (as in `metrics.json`).
     """
 
     out: Path
@@ -166,6 +182,7 @@ class DemoResult:
     seconds: float
     mean_relit: ImageScores
     mean_input: ImageScores
+    summary: str = ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -180,6 +197,8 @@ class LoadedModel:
         suggested_guidance: the guidance scale the model was evaluated with, if known.
         suggested_average: the samples averaged per image it was evaluated with, if known.
         suggested_mirror: whether it was evaluated with mirror averaging, if known.
+        suggested_compat: the lighting encoding it was trained with, if known.
+        suggested_object_fraction: the object framing it was trained with, if known.
     """
 
     model: NeuralGafferModel
@@ -189,6 +208,8 @@ class LoadedModel:
     suggested_guidance: float | None = None
     suggested_average: int | None = None
     suggested_mirror: bool | None = None
+    suggested_compat: CompatMode | None = None
+    suggested_object_fraction: float | None = None
 
 
 def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> LoadedModel:
@@ -266,7 +287,7 @@ def _load_gaffer_tiny(flag: str) -> LoadedModel:
             "gaffer-tiny ships inside the gaffer-diffusion package: reinstall it (`pip install "
             f"--force-reinstall gaffer-diffusion`), or pass a model folder as `{flag} DIR`.",
         )
-    logger.info("no `%s` given: using gaffer-tiny, the shipped 64 px model (%s)", flag, path)
+    logger.info("no `%s` given: using gaffer-tiny, the shipped 128 px model (%s)", flag, path)
     return LoadedModel(
         model=pretrained.load_gaffer_tiny().model,
         name="gaffer-tiny",
@@ -275,6 +296,8 @@ def _load_gaffer_tiny(flag: str) -> LoadedModel:
         suggested_guidance=pretrained.GAFFER_TINY_GUIDANCE,
         suggested_average=pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
         suggested_mirror=pretrained.GAFFER_TINY_MIRROR_AVERAGE,
+        suggested_compat=pretrained.GAFFER_TINY_COMPAT,  # type: ignore[arg-type]
+        suggested_object_fraction=pretrained.GAFFER_TINY_OBJECT_FRACTION,
     )
 
 
@@ -313,8 +336,10 @@ def _auto_input(root: Path) -> InputLighting:
     raise DatasetError(f"`--example` {root} holds no complete object (objects/*/manifest.json).")
 
 
-def _read_example(root: Path, choice: InputChoice, size: int) -> _Example:
-    from gaffer_diffusion.evaluation import read_mask, read_rgba_on_white
+def _read_example(
+    root: Path, choice: InputChoice, size: int, object_fraction: float | None = None
+) -> _Example:
+    from gaffer_diffusion.evaluation import pair_crop_box, read_mask, read_rgba_on_white
     from gaffer_envmap.bundled import bundled_hdris
 
     _require_gaffer_data()
@@ -341,12 +366,13 @@ def _read_example(root: Path, choice: InputChoice, size: int) -> _Example:
             f"`--example` {root} is a converted authors' dataset (pre-encoded maps, no env maps or "
             "poses): the demo needs a gaffer-data render. Score it with `gaffer-diffusion evaluate`."
         )
-    input_rgb, input_alpha = read_rgba_on_white(first.input_image, size)
+    box = pair_crop_box(first, object_fraction)  # one view: one object-centred square
+    input_rgb, input_alpha = read_rgba_on_white(first.input_image, size, box)
     targets, masks = [], []
     for p in pairs:
-        rgb, alpha = read_rgba_on_white(p.target_image, size)
+        rgb, alpha = read_rgba_on_white(p.target_image, size, box)
         targets.append(rgb)
-        masks.append(alpha if p.mask is None else read_mask(p.mask, size))
+        masks.append(alpha if p.mask is None else read_mask(p.mask, size, box))
     return _Example(
         pairs=pairs,
         input_rgb=_chw(np.stack([input_rgb])),
@@ -420,7 +446,9 @@ class _Envmaps:
         return env
 
 
-def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighting]:
+def _lightings(
+    example: _Example, config: DemoConfig, size: int, compat: CompatMode
+) -> list[_Lighting]:
     from gaffer_diffusion.conditioning import lighting_from_envmap
     from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
 
@@ -433,7 +461,7 @@ def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighti
             raise DatasetError(f"`{p.name}` has no environment map.")
         env = envmaps.get(lt)
         # Neural Gaffer §3.2: the target map rotated into the input camera's frame, then E_L / E_H
-        m = lighting_from_envmap(env, w2c, size=size, compat=config.compat)
+        m = lighting_from_envmap(env, w2c, size=size, compat=compat)
         key = f"{p.target_lighting:03d}_{lt.source.stem}"
         jobs.append(
             _Lighting(key=key, label=_label(lt), kind="target", world_rgb=_preview(env), maps=m)
@@ -442,7 +470,7 @@ def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighti
         scored = {p.lighting.source.stem for p in example.pairs}  # type: ignore[union-attr]
         for name in sorted(set(bundled_hdris()) - scored):
             env = read_bundled_hdri(name)
-            m = lighting_from_envmap(env, w2c, size=size, compat=config.compat)
+            m = lighting_from_envmap(env, w2c, size=size, compat=compat)
             jobs.append(
                 _Lighting(
                     key=f"extra_{name}", label=name, kind="extra", world_rgb=_preview(env), maps=m
@@ -455,7 +483,7 @@ def _lightings(example: _Example, config: DemoConfig, size: int) -> list[_Lighti
         n = config.frames
         spin = torch.arange(n, dtype=torch.float64) * (360.0 / n)
         m = lighting_from_envmap(
-            envmaps.get(lt), w2c.expand(n, -1, -1), size=size, compat=config.compat, spin_deg=spin
+            envmaps.get(lt), w2c.expand(n, -1, -1), size=size, compat=compat, spin_deg=spin
         )
         for k in range(n):
             jobs.append(
@@ -576,6 +604,8 @@ def _finite(o: object) -> object:
 def _scores(report: MetricsReport, i: int) -> dict[str, Any]:
     item = report.items[i]
     return {
+        "object_raw": None if item.object_raw is None else asdict(item.object_raw),
+        "object_aligned": None if item.object_aligned is None else asdict(item.object_aligned),
         "raw": asdict(item.raw),
         "aligned_image": asdict(item.aligned_image),
         "aligned_mask": None if item.aligned_mask is None else asdict(item.aligned_mask),
@@ -584,6 +614,10 @@ def _scores(report: MetricsReport, i: int) -> dict[str, Any]:
 
 def _means(report: MetricsReport) -> dict[str, Any]:
     return {
+        "object_raw": None if report.mean_object_raw is None else asdict(report.mean_object_raw),
+        "object_aligned": None
+        if report.mean_object_aligned is None
+        else asdict(report.mean_object_aligned),
         "raw": asdict(report.mean_raw),
         "aligned_image": asdict(report.mean_aligned_image),
         "aligned_mask": None
@@ -658,8 +692,10 @@ def run_demo(
     example_root = (
         Path(config.example) if config.example is not None else pretrained.example_dataset_path()
     )
-    example = _read_example(example_root, config.input_lighting, size)
-    jobs = _lightings(example, config, size)
+    compat = config.compat or loaded.suggested_compat or "neural-gaffer"
+    fraction = config.object_fraction or loaded.suggested_object_fraction
+    example = _read_example(example_root, config.input_lighting, size, fraction)
+    jobs = _lightings(example, config, size, compat)
     t_prepared = time.perf_counter()
 
     relit, batch_seconds = _sample(
@@ -706,6 +742,12 @@ def run_demo(
         images=len(jobs),
     )
     settings = _settings(config, loaded, pipe, sampling, example_root, example, len(jobs))
+    settings["lighting_encoding"] = f"gaffer-envmap, compat={compat!r}"
+    settings["framing"] = (
+        "whole render"
+        if fraction is None
+        else f"object-centred square crop, object spans {fraction:g} of the side"
+    )
     perceptual_info = {
         "name": None if perceptual is None else perceptual.name,
         "source": None if perceptual is None else perceptual.source,
@@ -738,6 +780,7 @@ def run_demo(
         seconds=seconds,
         mean_relit=model_report.mean_raw,
         mean_input=baseline.mean_raw,
+        summary=metrics["summary"],
     )
 
 
@@ -762,12 +805,16 @@ def _metrics_document(
         "settings": settings,
         "timings": timings.as_json(),
         "perceptual": perceptual,
+        "summary": _summary(model_report, baseline),
+        "closer_than_input": closer_than(model_report, baseline),
         "means": {
             "relit": _means(model_report),
             "baselines": {
                 "input": _means(baseline),
-                "note": "the unrelit input scored against each target: 'raw' as it is, "
-                "'aligned_image' / 'aligned_mask' channel-aligned to the target",
+                "note": "the unrelit input scored against each target: 'object_raw' / 'raw' as "
+                "it is, 'object_aligned' / 'aligned_image' / 'aligned_mask' channel-aligned to "
+                "the target; 'object_*' are scored over the object mask (lead), the rest over the "
+                "full frame",
             },
         },
         "items": [
@@ -796,6 +843,25 @@ def _metrics_document(
             "frame_pngs": files["turntable"]["frames"],
         },
     }
+
+
+def _summary(model_report: MetricsReport, baseline: MetricsReport) -> str:
+    """The headline: object-mask PSNR relit vs unrelit, then full frame."""
+    m, b = model_report, baseline
+    text = ""
+    if (
+        m.mean_object_raw is not None
+        and b.mean_object_raw is not None
+        and m.mean_object_aligned is not None
+        and b.mean_object_aligned is not None
+    ):
+        share = closer_than(m, b)
+        text = (
+            f"object mask: PSNR {m.mean_object_raw.psnr:.2f} dB relit vs {b.mean_object_raw.psnr:.2f} "
+            f"dB unrelit; aligned {m.mean_object_aligned.psnr:.2f} vs {b.mean_object_aligned.psnr:.2f} "
+            f"dB; closer than the input on {100 * (share or 0):.0f}% of lightings; "
+        )
+    return text + f"full frame: {m.mean_raw.psnr:.2f} dB relit vs {b.mean_raw.psnr:.2f} dB unrelit"
 
 
 def _write_images(
@@ -843,7 +909,7 @@ def _write_images(
         row[0] = (job.label if job.kind == "target" else f"{job.label} (no render)", job.world_rgb)
         sheet.append([(label, im) for label, im in row if im is not None])
         files[job.key] = entry
-    _write_png(out / "overview.png", contact_sheet(sheet, cell=96))
+    _write_png(out / "overview.png", contact_sheet(sheet, cell=128))
     files["turntable"] = {"gif": None, "frames": frame_pngs}
     if frames:
         _write_gif(out / "turntable.gif", frames, config.fps)
@@ -877,7 +943,7 @@ def _settings(
         "mirror_average": sampling.mirror_average,
         "seed": config.seed,
         "batch_size": config.batch_size,
-        "lighting_encoding": f"gaffer-envmap, compat={config.compat!r}",
+        "lighting_encoding": "",
         "device": pipe.runtime.device,
         "dtype": pipe.runtime.dtype,
         "torch": torch.__version__,
@@ -885,7 +951,8 @@ def _settings(
         "cpu": platform.processor() or platform.machine(),
         "python": platform.python_version(),
         "gaffer_diffusion": __version__,
-        "prediction": "8-bit quantised, scored over the full image on white (authors' protocol); "
+        "prediction": "8-bit quantised on white; scored over the object mask first, then over "
+        "the full frame (authors' protocol); "
         + (
             "the input kept outside its alpha"
             if config.keep_background
@@ -900,6 +967,13 @@ def _row_scores(item: dict[str, Any]) -> tuple[tuple[str, ImageScores], ...]:
         return None if d is None else ImageScores(**d)
 
     rows = [
+        ("relit, object mask", sc(item["relit"].get("object_raw"))),
+        ("relit, object mask, aligned", sc(item["relit"].get("object_aligned"))),
+        ("input, object mask (baseline)", sc(item["baseline_input"].get("object_raw"))),
+        (
+            "input aligned to target, object mask (baseline)",
+            sc(item["baseline_input"].get("object_aligned")),
+        ),
         ("relit", sc(item["relit"]["raw"])),
         ("relit, aligned (image)", sc(item["relit"]["aligned_image"])),
         ("relit, aligned (mask)", sc(item["relit"]["aligned_mask"])),
@@ -936,8 +1010,19 @@ def _report_content(
                 scores=_row_scores(items[job.key]) if job.key in items else (),
             )
         )
-    means = [
-        ("relit", model_report.mean_raw),
+    means: list[tuple[str, ImageScores]] = []
+    if model_report.mean_object_raw is not None and model_report.mean_object_aligned is not None:
+        means += [
+            ("relit, object mask", model_report.mean_object_raw),
+            ("relit, object mask, channel-aligned", model_report.mean_object_aligned),
+        ]
+    if baseline.mean_object_raw is not None and baseline.mean_object_aligned is not None:
+        means += [
+            ("baseline: unrelit input, object mask", baseline.mean_object_raw),
+            ("baseline: input channel-aligned, object mask", baseline.mean_object_aligned),
+        ]
+    means += [
+        ("relit, full frame", model_report.mean_raw),
         ("relit, channel-aligned (whole image)", model_report.mean_aligned_image),
     ]
     if model_report.mean_aligned_mask is not None:
@@ -978,4 +1063,5 @@ def _report_content(
         turntable_gif=None if tt is None else tt["gif"],
         turntable_label=None if tt is None else f"{tt['lighting']}, {tt['frames']} frames",
         created_utc=metrics["created_utc"],
+        summary=metrics["summary"],
     )

@@ -103,7 +103,7 @@ def _erode_steps(mask: Float[Tensor, "B 1 H W"], steps: int) -> Float[Tensor, "B
 
 
 def _blur(x: Tensor, sigma: float) -> Tensor:
-    radius = max(int(math.ceil(2.5 * sigma)), 1)
+    radius = max(math.ceil(2.5 * sigma), 1)
     t = torch.arange(-radius, radius + 1, device=x.device, dtype=x.dtype)
     k = torch.exp(-0.5 * (t / sigma) ** 2)
     k = k / k.sum()
@@ -126,7 +126,7 @@ def silhouette_normals(mask: Float[Tensor, "B 1 H W"]) -> Float[Tensor, "B 3 H W
     Height h = sqrt(2 R d - d^2) for the distance d to the silhouette and R its maximum (a disc gives
     a hemisphere), blurred by ~1.5% of the side, differentiated. Background pixels get (0, 0, 1).
     """
-    b, _, h, w = mask.shape
+    h, w = mask.shape[2:]
     d = _erode_steps(mask, max(h, w) // 2 + 1)
     r = d.amax(dim=(2, 3), keepdim=True).clamp_min(1.0)
     height = torch.sqrt((2 * r * d - d * d).clamp_min(0.0))

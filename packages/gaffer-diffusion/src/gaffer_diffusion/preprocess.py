@@ -213,7 +213,9 @@ def load_rgba_on_white(
     # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
     arr = np.concatenate([rgb * alpha + (1.0 - alpha), alpha], axis=-1)
     if box is not None:
-        arr = np.concatenate([crop_square(arr[..., :3], box, 1.0), crop_square(arr[..., 3:], box, 0.0)], -1)
+        arr = np.concatenate(
+            [crop_square(arr[..., :3], box, 1.0), crop_square(arr[..., 3:], box, 0.0)], -1
+        )
     out = torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1)  # [4, h, w]
     if tuple(out.shape[1:]) != (size, size):
         out = F.interpolate(

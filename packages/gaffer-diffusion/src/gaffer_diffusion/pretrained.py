@@ -28,12 +28,19 @@ GAFFER_TINY_AVERAGE_SAMPLES = 1
 GAFFER_TINY_MIRROR_AVERAGE = True
 """Whether gaffer-tiny's suggested setting averages with the mirrored input (`SamplingConfig.mirror_average`)."""
 
+GAFFER_TINY_COMPAT = "default"
+"""The lighting encoding gaffer-tiny was trained with (gaffer-envmap's default, not the authors')."""
+
+GAFFER_TINY_OBJECT_FRACTION = 0.75
+"""The framing gaffer-tiny was trained with: object-centred square crops in which the object's longer
+side spans 75% (`DataConfig.object_fraction`; `prepare_object_image`'s default for photos)."""
+
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
     "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
-    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json`, then "
-    "`gaffer-tiny-stage2.json` and `gaffer-tiny-stage3.json` (see its MODEL_CARD.md), and load the last "
-    "run's `final/` folder with `gaffer_diffusion.loading.load_pretrained`."
+    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json` on the "
+    "renders its MODEL_CARD.md lists, export the chosen step with `gaffer-diffusion export`, and load "
+    "that folder with `gaffer_diffusion.loading.load_pretrained`."
 )
 
 
@@ -74,8 +81,10 @@ def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
 
 __all__ = [
     "GAFFER_TINY_AVERAGE_SAMPLES",
+    "GAFFER_TINY_COMPAT",
     "GAFFER_TINY_GUIDANCE",
     "GAFFER_TINY_MIRROR_AVERAGE",
+    "GAFFER_TINY_OBJECT_FRACTION",
     "GAFFER_TINY_STEPS",
     "example_dataset_path",
     "gaffer_tiny_path",

@@ -65,6 +65,7 @@ class ReportContent:
         turntable_gif: relative path of the turntable GIF, or None.
         turntable_label: what spins in the turntable.
         created_utc: ISO time stamp.
+        summary: the headline (object-mask scores first), shown above the tables.
     """
 
     title: str
@@ -77,6 +78,7 @@ class ReportContent:
     turntable_gif: str | None
     turntable_label: str | None
     created_utc: str
+    summary: str = ""
 
 
 def _e(text: object) -> str:
@@ -134,7 +136,11 @@ def render_html(content: ReportContent) -> str:
         "Images are shown enlarged without smoothing; click one for the file. The model is "
         "conditioned on the input image and on the target lighting's two camera-frame encodings "
         "(E_L: LDR, E_H: log-normalised HDR; Neural Gaffer &sect;3.2).</p>",
+        f"<p><b>{_e(c.summary)}</b></p>" if c.summary else "",
         "<h2>Mean scores over the lightings with ground truth</h2>",
+        "<p>Object-mask rows first (PSNR of the MSE over the object's alpha, mask-weighted SSIM, "
+        "the perceptual metric on the object's box); full-frame rows (the authors' protocol, "
+        "dominated by the white background) after them.</p>",
         _scores_table(c.means, c.perceptual_label, "means"),
     ]
     if c.perceptual_note:

@@ -50,6 +50,7 @@ _EXPORTS: dict[str, str] = {
     "look_at_w2c_blender": "poses",
     "mean_light_direction": "stats",
     "orbit_w2c_blender": "poses",
+    "procedural_envmap": "procedural",
     "project_sh": "sh",
     "read_bundled_hdri": "bundled",
     "read_envmap": "io",
@@ -128,6 +129,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         look_at_w2c_blender,
         orbit_w2c_blender,
     )
+    from gaffer_envmap.procedural import procedural_envmap
     from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
     from gaffer_envmap.rotate import rotate_to_camera
     from gaffer_envmap.sanitize import SanitizeReport, sanitize
@@ -176,6 +178,7 @@ __all__ = [
     "look_at_w2c_blender",
     "mean_light_direction",
     "orbit_w2c_blender",
+    "procedural_envmap",
     "project_sh",
     "read_bundled_hdri",
     "read_envmap",

@@ -97,6 +97,25 @@ def _cmd_augment(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_procedural(args: argparse.Namespace) -> int:
+    from gaffer_envmap.procedural import procedural_envmap
+
+    if args.count < 1 or args.first < 0:
+        raise GafferEnvmapError(
+            f"`--count` {args.count} and `--first` {args.first}: pass --count >= 1 and --first >= 0."
+        )
+    if args.height < 8:
+        raise GafferEnvmapError(f"`--height` is {args.height}; pass 8 or more rows.")
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for seed in range(args.first, args.first + args.count):
+        write_envmap(out / f"proc_{seed:04d}.exr", procedural_envmap(seed, args.height))
+    print(
+        f"wrote {args.count} procedural maps (seeds {args.first}..{args.first + args.count - 1}) to {out}"
+    )
+    return 0
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     """The embedded default job: a bundled CC0 HDRI into four camera frames, encoded both ways."""
     import time
@@ -216,6 +235,18 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--flips", action="store_true", help="also write mirrored copies")
     sp.add_argument("--yaw-steps", type=int, default=8)
     sp.set_defaults(func=_cmd_augment)
+
+    sp = sub.add_parser(
+        "procedural",
+        help="random HDR skies with suns / soft lights (gaffer_envmap.procedural), one per seed",
+    )
+    sp.add_argument("--out-dir", required=True)
+    sp.add_argument("--first", type=int, default=0, help="first seed")
+    sp.add_argument(
+        "--count", type=int, default=60, help="number of maps (seeds first, first+1, ...)"
+    )
+    sp.add_argument("--height", type=int, default=128, help="rows (width = 2 x height)")
+    sp.set_defaults(func=_cmd_procedural)
 
     sp = sub.add_parser(
         "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"

@@ -38,9 +38,7 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from jaxtyping import Float
-from PIL import Image
 from torch import Tensor
 
 from gaffer_data import GafferDataError, open_authors_dataset, open_dataset, read_object
@@ -554,7 +552,9 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
         targets = [lit[i] for i in order[:t]]
         alpha = None if view.alpha is None else obj.path(view.alpha)
         size = self.resolution
-        input_png = obj.path(view.area.png if use_area and view.area is not None else lit[int(order[t])].png)
+        input_png = obj.path(
+            view.area.png if use_area and view.area is not None else lit[int(order[t])].png
+        )
         box = None
         if self.config.object_fraction is not None:
             # one square per view (input and targets alike): the object centred, filling the frame

@@ -43,11 +43,11 @@ from torch import Tensor
 from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
+from gaffer_diffusion.hints import relighting_hints
 from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training.config import ModelSource, TrainConfig
-from gaffer_diffusion.hints import relighting_hints
 from gaffer_diffusion.training.dataset import (
     KeySampler,
     RelightTrainDataset,
@@ -278,7 +278,9 @@ def _mirror_views(
         torch.where(flip_target, targets.flip(-1), targets),
         torch.where(flip_target, mirror_camera_x(ldr), ldr),
         torch.where(flip_target, mirror_camera_x(hdr), hdr),
-        None if alphas is None else torch.where(flip_view.view(b, 1, 1, 1), alphas.flip(-1), alphas),
+        None
+        if alphas is None
+        else torch.where(flip_view.view(b, 1, 1, 1), alphas.flip(-1), alphas),
     )
 
 
