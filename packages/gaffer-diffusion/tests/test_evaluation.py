@@ -233,18 +233,14 @@ def test_evaluate_dataset_is_batch_invariant_and_merges_reports(dataset, tmp_pat
     assert [s.stem for s in saved] == [p.name.split("/")[1] for p in pairs]
     # the saved PNGs are exactly what was scored (8-bit predictions)
     pred = torch.from_numpy(np.asarray(Image.open(saved[0]), np.float32) / 255).permute(2, 0, 1)
-    gt_rgba = (
-        np.asarray(
-            Image.open(pairs[0].target_image).resize((64, 64), Image.Resampling.BICUBIC), np.float32
-        )
-        / 255
-    )
-    gt = gt_rgba[..., :3] * gt_rgba[..., 3:] + 1 - gt_rgba[..., 3:]
-    gt_t = torch.from_numpy(gt).permute(2, 0, 1)
+    # the target as evaluation reads it: the training loader (composited on white, then resized)
+    from gaffer_diffusion.preprocess import load_rgba_on_white
+
+    gt_t, _ = load_rgba_on_white(pairs[0].target_image, 64)
     single = evaluate_images(pred[None], gt_t[None], perceptual=None)
     assert single.mean_raw.psnr == pytest.approx(a.report.items[0].raw.psnr, abs=1e-4)
     md = a.to_markdown()
-    assert "aligned (mask)" in md and "num_inference_steps" in md
+    assert "aligned (mask means)" in md and "num_inference_steps" in md
     assert json.loads(a.to_json())["metrics"]["items"][0]["name"] == pairs[0].name
 
 
@@ -318,8 +314,11 @@ def test_cli_evaluate_dataset_with_our_checkpoint(dataset, tmp_path, capsys) -> 
     # --dataset and --pred are two different modes
     assert main(["evaluate", "--dataset", str(root), "--pred", str(tmp_path)]) == 2
     assert "either" in capsys.readouterr().err
-    assert main(["evaluate", "--dataset", str(root)]) == 2
-    assert "--checkpoint" in capsys.readouterr().err
+    # without --checkpoint, evaluate now uses the shipped gaffer-tiny (not exercised here: its
+    # weights are replaced separately); a bad --object-fraction is refused
+    bad = ["evaluate", "--dataset", str(root), "--checkpoint", str(model), "--no-perceptual"]
+    assert main([*bad, "--object-fraction", "1.5"]) == 2
+    assert "object-fraction" in capsys.readouterr().err
 
 
 def test_evaluation_config_validates() -> None:
@@ -328,6 +327,12 @@ def test_evaluation_config_validates() -> None:
     with pytest.raises(ConfigError, match="compat"):
         EvaluationConfig(compat="theirs")  # type: ignore[arg-type]
     assert dataclasses.replace(EvaluationConfig(), seed=3).seed == 3
+    assert EvaluationConfig().object_fraction is None  # the authors' protocol: whole renders
+    assert EvaluationConfig(object_fraction=0.75).object_fraction == 0.75
+    assert EvaluationConfig(object_fraction=1.0).object_fraction == 1.0
+    for bad in (0.0, 1.5, -0.25):
+        with pytest.raises(ConfigError, match="object_fraction"):
+            EvaluationConfig(object_fraction=bad)
 
 
 def _authors_release(root: Path) -> Path:
@@ -414,3 +419,37 @@ def test_evaluate_dataset_keeps_the_input_background_by_default(dataset, tmp_pat
     np.testing.assert_array_equal(k[fg], f[fg])  # object: the model's pixels either way
     assert kept.report.mean_raw.psnr > full.report.mean_raw.psnr
     assert kept.settings["background"] != full.settings["background"]
+
+
+def test_evaluate_dataset_object_fraction_crops_input_target_and_mask(dataset) -> None:
+    from gaffer_diffusion.evaluation import pair_crop_box, read_mask, read_rgba_on_white
+    from gaffer_diffusion.preprocess import object_square, read_alpha
+
+    root, _ = dataset
+    pairs = dataset_pairs(root)[:2]
+    p = pairs[0]
+    assert pair_crop_box(p, None) is None
+    box = pair_crop_box(p, 0.5)
+    assert box == object_square(read_alpha(p.mask if p.mask is not None else p.input_image), 0.5)
+    # the disc spans 2/3 of the render; at fraction 0.5 the square reaches past it (white, alpha 0)
+    top, left, side = box
+    assert side > RES and top < 0 and left < 0
+    _, whole_alpha = read_rgba_on_white(p.input_image, 64)
+    x, alpha = read_rgba_on_white(p.input_image, 64, box)
+    assert alpha.mean() < whole_alpha.mean()  # zoomed out: the object covers less of the frame
+    np.testing.assert_allclose(x[0, 0], 1.0, atol=1e-6)  # padding outside the render is white
+    assert alpha[0, 0] == 0.0
+    if p.mask is not None:
+        np.testing.assert_allclose(read_mask(p.mask, 64, box), alpha, atol=2 / 255)
+    pipe = RelightPipeline(tiny_model())
+    sampling = SamplingConfig(num_inference_steps=1)
+    whole = evaluate_dataset(pipe, pairs, EvaluationConfig(sampling=sampling), perceptual=None)
+    cropped = evaluate_dataset(
+        pipe, pairs, EvaluationConfig(sampling=sampling, object_fraction=0.5), perceptual=None
+    )
+    assert "whole render" in whole.settings["framing"]
+    assert "0.5" in cropped.settings["framing"]
+    assert cropped.report.mean_object_raw is not None
+    assert cropped.report.mean_raw.psnr != pytest.approx(whole.report.mean_raw.psnr, abs=1e-3)
+    assert cropped.summary().startswith("object mask: PSNR")
+    assert json.loads(cropped.to_json())["closer_than_input"] is not None

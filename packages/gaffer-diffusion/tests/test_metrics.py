@@ -68,7 +68,7 @@ def test_report_labels_variants_and_means() -> None:
     assert report.mean_aligned_image.psnr > report.mean_raw.psnr
     assert report.mean_raw.psnr == pytest.approx(sum(i.raw.psnr for i in report.items) / 3)
     md = report.to_markdown()
-    assert "aligned (whole image)" in md and "aligned (mask)" in md and "n/a" in md
+    assert "aligned (whole image)" in md and "aligned (mask means)" in md and "n/a" in md
     data = json.loads(report.to_json())
     assert data["items"][0]["aligned_mask"]["psnr"] == pytest.approx(
         report.items[0].aligned_mask.psnr

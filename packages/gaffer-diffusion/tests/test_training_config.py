@@ -75,3 +75,14 @@ def test_shipped_configs_load(name: str) -> None:
     if name == "neural-gaffer-paper":
         assert cfg.model.init == "zero123-xl" and cfg.train.max_steps == 80_000
         assert cfg.train.batch_size * cfg.data.targets_per_sample * 8 == 1024
+
+
+def test_object_fraction_defaults_to_the_whole_render_and_is_validated() -> None:
+    base = {"output_dir": "r", "data": {"root": "d"}}
+    assert TrainConfig.from_dict(base).data.object_fraction is None
+    cfg = TrainConfig.from_dict({**base, "data": {"root": "d", "object_fraction": 0.75}})
+    assert cfg.data.object_fraction == 0.75
+    assert TrainConfig.from_dict(cfg.to_dict()) == cfg
+    for bad in (0, 0.0, 1.5, -0.5):
+        with pytest.raises(ConfigError, match=r"data\.object_fraction"):
+            TrainConfig.from_dict({**base, "data": {"root": "d", "object_fraction": bad}})

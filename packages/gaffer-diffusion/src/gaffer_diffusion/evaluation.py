@@ -156,7 +156,8 @@ class EvaluationConfig:
             alike, as a model trained with `DataConfig.object_fraction` saw its data.
 
     Raises:
-        ConfigError: on a non-positive `batch_size` or an unknown `compat`.
+        ConfigError: on a non-positive `batch_size`, an unknown `compat` or an `object_fraction`
+            outside (0, 1].
     """
 
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
@@ -176,6 +177,11 @@ class EvaluationConfig:
             raise ConfigError(
                 f"`compat` is {self.compat!r}; expected 'neural-gaffer' (released checkpoint) or "
                 "'default'."
+            )
+        if self.object_fraction is not None and not 0.0 < self.object_fraction <= 1.0:
+            raise ConfigError(
+                f"`object_fraction` is {self.object_fraction}; expected a fraction in (0, 1], "
+                "or None for the whole render."
             )
 
 

@@ -152,7 +152,7 @@ def object_square(alpha: np.ndarray, object_fraction: float) -> tuple[int, int, 
     """
     if not 0.0 < object_fraction <= 1.0:
         raise InputValueError(f"`object_fraction` is {object_fraction}; expected (0, 1].")
-    ys, xs = np.nonzero(np.asarray(alpha) > ALPHA_THRESHOLD)
+    ys, xs = np.nonzero(_to_unit(alpha, "alpha") > ALPHA_THRESHOLD)
     if ys.size == 0:
         raise InputValueError("The object mask is empty (no alpha above 0.5): nothing to crop to.")
     top, bottom, left, right = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
