@@ -86,7 +86,9 @@ def test_metrics_json_has_scores_baselines_and_timings(demo_out) -> None:
     assert m["schema"] == "gaffer.demo_metrics"
     assert m["settings"]["num_inference_steps"] == 2
     assert m["settings"]["device"] == "cpu" and m["settings"]["torch_threads"] == 1
-    for variant in ("raw", "aligned_image", "aligned_mask"):
+    assert m["summary"].startswith("object mask: PSNR")
+    assert 0.0 <= m["closer_than_input"] <= 1.0
+    for variant in ("object_raw", "object_aligned", "raw", "aligned_image", "aligned_mask"):
         for who in (m["means"]["relit"], m["means"]["baselines"]["input"]):
             assert math.isfinite(who[variant]["psnr"]) and 0 <= who[variant]["ssim"] <= 1
     assert [it["name"] for it in m["items"]] == ["001_cool", "002_warm"]
@@ -95,6 +97,8 @@ def test_metrics_json_has_scores_baselines_and_timings(demo_out) -> None:
             set(it["relit"])
             == set(it["baseline_input"])
             == {
+                "object_raw",
+                "object_aligned",
                 "raw",
                 "aligned_image",
                 "aligned_mask",
@@ -113,7 +117,8 @@ def test_target_maps_are_the_evaluation_maps_and_the_turntable_starts_there(exam
     from gaffer_diffusion.evaluation import pair_lighting
 
     ex = _read_example(example, "auto", 64)
-    jobs = _lightings(ex, DemoConfig(out=Path("unused"), frames=4, extra_hdris=False), 64)
+    config = DemoConfig(out=Path("unused"), frames=4, extra_hdris=False)
+    jobs = _lightings(ex, config, 64, "neural-gaffer")
     targets = [j for j in jobs if j.kind == "target"]
     frames = [j for j in jobs if j.kind == "turntable"]
     assert len(targets) == 2 and len(frames) == 4
@@ -253,7 +258,7 @@ def test_relight_without_checkpoint_uses_gaffer_tiny(tmp_path, caplog) -> None:
         assert main([*args, "--out", str(tmp_path / "out.png"), "--steps", "1"]) == 0
     assert "using gaffer-tiny" in caplog.text
     with Image.open(tmp_path / "out.png") as im:
-        assert im.size == (64, 64)
+        assert im.size == (128, 128)  # gaffer-tiny's resolution
 
 
 def test_relight_without_checkpoint_names_the_missing_weights(

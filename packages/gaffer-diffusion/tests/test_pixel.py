@@ -165,8 +165,10 @@ def test_shipped_gaffer_tiny_loads_and_relights_the_example() -> None:
     assert (example / "dataset.json").is_file()
     weights = pretrained.gaffer_tiny_path() / "unet" / "diffusion_pytorch_model.safetensors"
     assert weights.stat().st_size < 25 * 2**20
-    out = RelightPipeline(model)(random_conditions(1, 64), SamplingConfig(num_inference_steps=2))
-    assert out.images.shape == (1, 3, 64, 64)
+    res = model.config.resolution
+    assert res == 128 and model.config.hints
+    out = RelightPipeline(model)(random_conditions(1, res), SamplingConfig(num_inference_steps=2))
+    assert out.images.shape == (1, 3, res, res)
 
 
 def test_prediction_type_is_validated_and_sets_the_training_target() -> None:

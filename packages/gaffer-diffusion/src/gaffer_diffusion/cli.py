@@ -230,6 +230,19 @@ def _parser() -> argparse.ArgumentParser:
         "alpha/mask) is kept, as the view does not move",
     )
     d.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding (default: the model's own; gaffer-tiny: 'default')",
+    )
+    d.add_argument(
+        "--object-fraction",
+        type=float,
+        default=None,
+        help="crop the example around its object, which then spans this fraction of the side "
+        "(default: the model's framing; gaffer-tiny: 0.75)",
+    )
+    d.add_argument(
         "--no-extra-hdris",
         action="store_true",
         help="skip the bundled HDRIs that have no ground-truth render",
@@ -663,6 +676,8 @@ def _demo(args: argparse.Namespace) -> int:
         device=args.device,
         extra_hdris=not args.no_extra_hdris,
         keep_background=not args.full_frame,
+        compat=args.compat,
+        object_fraction=args.object_fraction,
     )
     result = run_demo(config)
     gif = f", {result.turntable_gif}" if result.turntable_gif is not None else ""
