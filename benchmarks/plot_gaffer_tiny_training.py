@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     runs = {int(k): Path(v) for k, v in (r.split("=", 1) for r in args.run)}
     seconds = {
-        res: training_seconds(d / "logs" / "train.jsonl", args.batch_size) for res, d in runs.items()
+        res: training_seconds(d / "logs" / "train.jsonl", args.batch_size)
+        for res, d in runs.items()
     }
     rows: list[dict[str, Any]] = []
     for spec in args.eval:

@@ -57,7 +57,8 @@ def test_cli_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     )
     metrics = json.loads(out_json.read_text())
     assert metrics["perceptual_name"] == "stlpips-alex" and len(metrics["items"]) == 2
-    assert "aligned (mask)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "object mask, raw" in out and "aligned (mask means)" in out
 
 
 def test_cli_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

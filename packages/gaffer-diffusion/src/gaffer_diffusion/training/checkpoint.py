@@ -194,4 +194,3 @@ def read_state(folder: str | Path) -> TrainState:
             f"{path} is missing or unreadable ({exc}); pass a complete `checkpoint-*` folder."
         ) from exc
     return TrainState.from_json(data, str(path))
-
