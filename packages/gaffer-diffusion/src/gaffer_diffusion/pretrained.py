@@ -38,9 +38,9 @@ side spans 75% (`DataConfig.object_fraction`; `prepare_object_image`'s default f
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
     "Reinstall the package (`pip install --force-reinstall gaffer-diffusion`), or retrain it with "
-    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json` on the "
-    "renders its MODEL_CARD.md lists, export the chosen step with `gaffer-diffusion export`, and load "
-    "that folder with `gaffer_diffusion.loading.load_pretrained`."
+    "`gaffer-diffusion train --config packages/gaffer-diffusion/configs/gaffer-tiny.json`, then "
+    "`gaffer-tiny-stage2.json`, on the renders its MODEL_CARD.md lists, export the chosen step with "
+    "`gaffer-diffusion export`, and load that folder with `gaffer_diffusion.loading.load_pretrained`."
 )
 
 
