@@ -696,13 +696,20 @@ def _init_random(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export(args: argparse.Namespace) -> int:
+def _training_module(what: str) -> Any:
+    """`gaffer_diffusion.training`, or a clear error naming the `train` extra."""
     try:
-        from gaffer_diffusion.training.loop import load_checkpoint_model
+        import gaffer_diffusion.training as training
+        import gaffer_diffusion.training.loop  # noqa: F401  (accelerate and gaffer-data load here)
     except ImportError as exc:
         raise MissingDependencyError(
-            f'Exporting needs the train extra ({exc.name} is missing): pip install "gaffer-diffusion[train]"'
+            f'{what} needs the train extra ({exc.name} is missing): pip install "gaffer-diffusion[train]"'
         ) from exc
+    return training
+
+
+def _export(args: argparse.Namespace) -> int:
+    load_checkpoint_model = _training_module("Exporting").loop.load_checkpoint_model
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"`--out` {args.out} exists and is not empty; pass a new folder.")
     model = load_checkpoint_model(args.checkpoint, use_ema=not args.raw)
@@ -712,12 +719,8 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
-    try:
-        from gaffer_diffusion.training import load_config, train
-    except ImportError as exc:
-        raise MissingDependencyError(
-            f'Training needs the train extra ({exc.name} is missing): pip install "gaffer-diffusion[train]"'
-        ) from exc
+    training = _training_module("Training")
+    load_config, train = training.load_config, training.train
     result = train(load_config(args.config), resume=args.resume)
     print(
         f"trained steps {result.start_step} -> {result.step} ({result.stop_reason}) in "

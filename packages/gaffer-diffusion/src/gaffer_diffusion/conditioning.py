@@ -297,13 +297,10 @@ def hints_for(conditions: RelightingConditions, size: int) -> Float[Tensor, "B 1
     The mask is `conditions.mask` (the input's alpha), else the pixels of the input that are not
     pure white; latent models get the hints area-downsampled to their latent size.
     """
-    from gaffer_diffusion.hints import relighting_hints
+    from gaffer_diffusion.hints import hints_at
 
     mask = conditions.mask if conditions.mask is not None else object_mask_of(conditions.image)
-    hints = relighting_hints(mask.float(), conditions.lighting.ldr, conditions.lighting.hdr)
-    if hints.shape[-1] != size:
-        hints = F.interpolate(hints, size=(size, size), mode="area")
-    return hints
+    return hints_at(mask.float(), conditions.lighting.ldr, conditions.lighting.hdr, size)
 
 
 def lighting_from_envmap(

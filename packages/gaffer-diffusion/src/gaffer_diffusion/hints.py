@@ -31,6 +31,7 @@ from torch import Tensor
 __all__ = [
     "HINT_CHANNELS",
     "PHONG_EXPONENTS",
+    "hints_at",
     "prefiltered_maps",
     "radiance_from_maps",
     "relighting_hints",
@@ -238,3 +239,17 @@ def relighting_hints(
     inside = (mask > 0.5).float()
     encoded = (_tone(torch.cat([diffuse, glossy], dim=1)) * 2.0 - 1.0) * inside
     return torch.cat([encoded, normals * inside], dim=1)
+
+
+def hints_at(
+    mask: Float[Tensor, "B 1 H W"],
+    ldr: Float[Tensor, "B 3 S S"],
+    hdr: Float[Tensor, "B 3 S S"],
+    size: int,
+) -> Float[Tensor, "B 12 s s"]:
+    """`relighting_hints` at `size` px: area-downsampled for a latent model (the one place both
+    training and `encode_conditions` take them from)."""
+    hints = relighting_hints(mask, ldr, hdr)
+    if hints.shape[-1] != size:
+        hints = F.interpolate(hints, size=(size, size), mode="area")
+    return hints

@@ -64,20 +64,16 @@ def psnr(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[
     return (10.0 * torch.log10(1.0 / mse)).float()
 
 
-def ssim(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
-    """Per-image SSIM (torchmetrics; Gaussian 11, sigma 1.5, data range 1).
-
-    Raises:
-        MissingDependencyError: without torchmetrics (`pip install "gaffer-diffusion[metrics]"`).
-    """
-    _check_pair(pred, gt)
+def _ssim_torchmetrics(pred: Tensor, gt: Tensor, *, full_image: bool) -> object:
+    """torchmetrics' SSIM (Gaussian 11, sigma 1.5, data range 1), per image; with `full_image` also the
+    SSIM map."""
     try:
         from torchmetrics.functional.image import structural_similarity_index_measure
     except ImportError as exc:
         raise MissingDependencyError(
             'SSIM needs torchmetrics: pip install "gaffer-diffusion[metrics]"'
         ) from exc
-    out = structural_similarity_index_measure(
+    return structural_similarity_index_measure(
         pred.float(),
         gt.float(),
         gaussian_kernel=True,
@@ -85,8 +81,18 @@ def ssim(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[
         kernel_size=11,
         data_range=1.0,
         reduction="none",
+        return_full_image=full_image,
     )
-    return torch.as_tensor(out).reshape(-1)
+
+
+def ssim(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+    """Per-image SSIM (torchmetrics; Gaussian 11, sigma 1.5, data range 1).
+
+    Raises:
+        MissingDependencyError: without torchmetrics (`pip install "gaffer-diffusion[metrics]"`).
+    """
+    _check_pair(pred, gt)
+    return torch.as_tensor(_ssim_torchmetrics(pred, gt, full_image=False)).reshape(-1)
 
 
 def masked_psnr(
@@ -113,22 +119,7 @@ def masked_ssim(
 ) -> Float[Tensor, " B"]:
     """Per-image mean of the SSIM map (torchmetrics, as `ssim`) weighted by the mask."""
     _check_pair(pred, gt)
-    try:
-        from torchmetrics.functional.image import structural_similarity_index_measure
-    except ImportError as exc:
-        raise MissingDependencyError(
-            'SSIM needs torchmetrics: pip install "gaffer-diffusion[metrics]"'
-        ) from exc
-    _, full = structural_similarity_index_measure(
-        pred.float(),
-        gt.float(),
-        gaussian_kernel=True,
-        sigma=1.5,
-        kernel_size=11,
-        data_range=1.0,
-        reduction="none",
-        return_full_image=True,
-    )
+    _, full = _ssim_torchmetrics(pred, gt, full_image=True)  # type: ignore[misc]
     full = torch.as_tensor(full)  # [B, 3, H, W] (torchmetrics pads to the input size)
     w = mask.float()
     if full.shape[2:] != w.shape[2:]:

@@ -43,7 +43,7 @@ from torch import Tensor
 from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
-from gaffer_diffusion.hints import relighting_hints
+from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training import checkpoint as ckpt
@@ -235,10 +235,8 @@ class _Trainer:
             clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
             parts = [image_lat, hdr_lat, ldr_lat]
             if alphas is not None:  # radiance hints of the (possibly mirrored) inputs' masks
-                hint = relighting_hints(alphas.repeat_interleave(t, dim=0), ldr, hdr)
-                if hint.shape[-1] != image_lat.shape[-1]:
-                    hint = F.interpolate(hint, size=tuple(image_lat.shape[-2:]), mode="area")
-                parts.append(hint)
+                mask = alphas.repeat_interleave(t, dim=0)
+                parts.append(hints_at(mask, ldr, hdr, int(image_lat.shape[-1])))
         cond = torch.cat(parts, dim=1)  # [BT, 12 (+12 hints), h, w]
         noise = torch.randn(z0.shape, generator=gen).to(dev)
         lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up
