@@ -95,3 +95,18 @@ def test_demo_runs_on_the_bundled_hdri(tmp_path: Path) -> None:
     with Image.open(tmp_path / "overview.png") as sheet:
         assert summary["views"] == 4 and sheet.size[0] > 500
     assert (tmp_path / "view_0" / "compat_hdr.png").exists()
+
+
+def test_encode_compat_spin_is_the_authors_frame(scene: tuple[Path, Path], tmp_path: Path) -> None:
+    """`encode --compat neural-gaffer --spin D` writes their turntable frame k = D / 360 * N (issue 15)."""
+    from gaffer_envmap.testing import reference_neural_gaffer
+
+    src, w2c = scene
+    out = tmp_path / "enc"
+    args = ["encode", str(src), "--w2c", str(w2c), "--out-dir", str(out), "--size", "32"]
+    assert main([*args, "--compat", "neural-gaffer", "--spin", "135"]) == 0
+    env, pose = read_envmap(src).radiance_linear, np.load(w2c)
+    ref_ldr, ref_hdr = reference_neural_gaffer(env, pose, 32, frame=3, num_frames=8)
+    for name, ref in (("ldr.png", ref_ldr), ("hdr.png", ref_hdr)):
+        with Image.open(out / name) as img:
+            assert np.array_equal(np.asarray(img), ref), name

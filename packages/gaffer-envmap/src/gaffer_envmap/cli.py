@@ -226,7 +226,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="neural-gaffer: bit-compatible with the released checkpoint",
     )
     sp.add_argument("--size", type=int, default=256)
-    sp.add_argument("--spin", type=float, default=0.0)
+    sp.add_argument(
+        "--spin",
+        type=float,
+        default=0.0,
+        help="extra turn of the light about world up, degrees: counter-clockwise in the default "
+        "mode; with --compat neural-gaffer the authors' turntable sense, D = their frame "
+        "k = D / 360 * N of N (the light turns clockwise)",
+    )
     sp.set_defaults(func=_cmd_encode)
 
     sp = sub.add_parser("augment", help="exact flips and yaw steps (the paper's pool augmentation)")

@@ -5,9 +5,12 @@ The released checkpoint was trained on maps made this way, so it should be fed m
 
 1. output grid the size of the source, elevation +pi/2 (top) .. -pi/2 and azimuth +pi (left) .. -pi at
    pixel centres; d_local = (cos phi cos theta, sin phi cos theta, sin theta);
-2. d_world = d_local (A R) as row vectors, A = [[1,0,0],[0,0,-1],[0,1,0]], R the w2c rotation
-   (times Rz on the right for a turntable spin);
-3. theta' = arccos(d_z), phi' = atan2(d_y, d_x), grid x = -phi'/pi, y = 2 theta'/pi - 1, clamped to
+2. d_world = d_local (A R) as row vectors, A = [[1,0,0],[0,0,-1],[0,1,0]], R the w2c rotation;
+   their turntable frame k of N multiplies on the right by Rz(-2 pi k / N) (issue 15, reading 1), so
+   `spin_deg = D` here is their frame k = D / 360 * N: the light turns by -D about world up
+   (clockwise seen from above), the OPPOSITE sense of the default mode's `spin_deg`;
+3. theta' = arccos(d_z) - 1e-6 (their offset, issue 15 reading 2), phi' = atan2(d_y, d_x),
+   grid x = -phi'/pi, y = 2 theta'/pi - 1, clamped to
    +-(1 - 1e-7); bilinear `grid_sample`, align_corners=True, zero padding (no seam wrap, identity off by up
    to half a pixel);
 4. LDR = clip(E, 0, 1) ** (1/2.2); HDR = log1p(10 E) / max(log1p(10 E)) over the rotated map, clipped;
@@ -32,8 +35,13 @@ import torch.nn.functional as F
 from PIL import Image
 from torch import Tensor
 
+from gaffer_envmap.errors import ShapeError
+
 _A = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]], dtype=torch.float64)
 _CLAMP = 1.0 - 1e-7
+THETA_OFFSET = 1e-6
+"""The authors subtract this from arccos(d_z) before the lookup (issue 15, reading 2): it moves the
+sampling row by about 3e-7 px, enough to flip ~0.2-0.8% of a textured map's LDR values by one LSB."""
 
 
 @lru_cache(maxsize=8)
@@ -56,6 +64,27 @@ def spin_matrix_authors(spin_index: int, num_frames: int) -> Tensor:
     )
 
 
+def spin_matrices_neural_gaffer(
+    spin_deg: "float | Tensor", count: int, device: torch.device
+) -> Tensor:
+    """`[count, 3, 3]` right factors Rz(-D) for `spin_deg` D (scalar or `[count]`): frame k = D N / 360.
+
+    Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]], the same matrix as `spin_matrix_authors`
+    with 2 pi k / N = D in radians, so `encode --compat neural-gaffer --spin D` is their frame k for any N.
+
+    Raises:
+        ShapeError: when `spin_deg` is neither a scalar nor one angle per pose.
+    """
+    ang = torch.as_tensor(spin_deg, dtype=torch.float64, device=device).reshape(-1)
+    if ang.numel() == 1:
+        ang = ang.expand(count)
+    if ang.numel() != count:
+        raise ShapeError("spin_deg", tuple(ang.shape), f"a scalar or [{count}] (one per pose)")
+    a = -torch.deg2rad(ang)
+    c, s, z, o = torch.cos(a), torch.sin(a), torch.zeros_like(a), torch.ones_like(a)
+    return torch.stack([c, -s, z, s, c, z, z, z, o], dim=-1).reshape(count, 3, 3)
+
+
 def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | None = None) -> Tensor:
     """Steps 1-3 for `[B, He, We, 3]` maps and `[B, 3, 3]` rotations (optional `[B, 3, 3]` right factors).
 
@@ -66,9 +95,8 @@ def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | Non
     if spin is not None:
         m = m @ spin.to(m)
     d = _local_dirs(he, we).to(rotations.device)[None] @ m  # [B, N, 3]
-    theta = torch.arccos(
-        d[..., 2].clamp(-1.0, 1.0)
-    )  # guards a NaN the authors could hit at |d_z| = 1 + eps
+    # the clamp guards a NaN the authors could hit at |d_z| = 1 + eps; the offset is theirs
+    theta = torch.arccos(d[..., 2].clamp(-1.0, 1.0)) - THETA_OFFSET
     phi = torch.atan2(d[..., 1], d[..., 0])
     grid = torch.stack([-phi / math.pi, 2 * theta / math.pi - 1], -1).clamp(-_CLAMP, _CLAMP)
     grid = grid.reshape(b, he, we, 2).to(torch.float32)

@@ -21,14 +21,17 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from gaffer_envmap.compat import encode_neural_gaffer, rotate_neural_gaffer
+from gaffer_envmap.compat import (
+    encode_neural_gaffer,
+    rotate_neural_gaffer,
+    spin_matrices_neural_gaffer,
+)
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError, ShapeError
 from gaffer_envmap.poses import W2CBlender
 from gaffer_envmap.resample import resize_conservative_torch
 from gaffer_envmap.rotate import (
     Filter,
-    _spin_matrix,
     as_radiance_batch,
     as_rotations,
     prefilter_height,
@@ -136,7 +139,10 @@ def encode_lighting(
         w2c_blender: Blender world-to-camera poses `[B, 3, 4]`, or one pose for all maps.
         size: output side S (the paper: 256).
         compat: "default" (correct) or "neural-gaffer" (bit-compatible with the released checkpoint).
-        spin_deg: extra counter-clockwise turn of the light about world up, scalar or `[B]`.
+        spin_deg: extra turn of the light about world up, degrees, scalar or `[B]`. Default mode:
+            counter-clockwise seen from above. `compat="neural-gaffer"`: the authors' turntable sense,
+            D is their frame k = D N / 360 (Rz(-D) on the right of the direction rotation), which
+            turns the light clockwise.
         filter, supersample: rotation filter of the default mode (see `rotate_to_camera`).
         quantize: default mode only: round to 8 bit (round-to-nearest), as a PNG round trip would.
         device: torch device for the computation.
@@ -158,7 +164,8 @@ def encode_lighting(
     if compat == "neural-gaffer":
         spin = None
         if not (isinstance(spin_deg, float | int) and spin_deg == 0):
-            spin = _spin_matrix(spin_deg, src.shape[0], src.device).transpose(1, 2)
+            # the authors' sense (issue 15): D is their turntable frame k = D N / 360, Rz(-D) on the right
+            spin = spin_matrices_neural_gaffer(spin_deg, src.shape[0], src.device)
         rotated = rotate_neural_gaffer(src, rot, spin)
         ldr_u8, hdr_u8 = encode_neural_gaffer(rotated, size)
         to_t = lambda a: torch.from_numpy(a).to(src.device).permute(0, 3, 1, 2).float() / 255  # noqa: E731

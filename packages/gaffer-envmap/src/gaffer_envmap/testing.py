@@ -54,12 +54,21 @@ def smooth_random_map(height: int, seed: int = 0, lobes: int = 6) -> Environment
 
 
 def reference_neural_gaffer(
-    radiance: np.ndarray, w2c_blender: np.ndarray, size: int = 256
+    radiance: np.ndarray,
+    w2c_blender: np.ndarray,
+    size: int = 256,
+    *,
+    frame: int = 0,
+    num_frames: int = 1,
+    theta_offset: float = 1e-6,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The authors' preprocessing written out directly (reference section 4, steps 1-7), one map.
 
     numpy for the directions, a hand-written align_corners=True zero-padded bilinear lookup, PIL resize.
-    Returns uint8 `[size, size, 3]` LDR and HDR.
+    `frame` of `num_frames` is their turntable: the row-vector directions are multiplied on the right by
+    Rz(-2 pi frame / num_frames) after the camera rotation. `theta_offset` is subtracted from
+    arccos(d_z) as they do (issue 15); 0 gives the reading without it (for tests that must tell them
+    apart). Returns uint8 `[size, size, 3]` LDR and HDR.
     """
     he, we, _ = radiance.shape
     theta = np.pi / 2 - (np.arange(he) + 0.5) * np.pi / he
@@ -67,8 +76,10 @@ def reference_neural_gaffer(
     th, ph = np.meshgrid(theta, phi, indexing="ij")
     d_local = np.stack([np.cos(ph) * np.cos(th), np.sin(ph) * np.cos(th), np.sin(th)], -1)
     a = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
-    d = d_local @ (a @ np.asarray(w2c_blender, np.float64)[:3, :3])
-    th2 = np.arccos(np.clip(d[..., 2], -1, 1))
+    ang = -2.0 * np.pi * frame / num_frames
+    rz = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1.0]])
+    d = d_local @ (a @ np.asarray(w2c_blender, np.float64)[:3, :3]) @ rz
+    th2 = np.arccos(np.clip(d[..., 2], -1, 1)) - theta_offset
     ph2 = np.arctan2(d[..., 1], d[..., 0])
     gx = np.clip(-ph2 / np.pi, -(1 - 1e-7), 1 - 1e-7).astype(np.float32)
     gy = np.clip(2 * th2 / np.pi - 1, -(1 - 1e-7), 1 - 1e-7).astype(np.float32)
