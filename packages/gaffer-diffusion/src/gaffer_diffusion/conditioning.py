@@ -228,7 +228,7 @@ def encode_conditions(
     conditions: RelightingConditions,
     *,
     latent_mode: LatentMode = "mode",
-    generator: torch.Generator | None = None,
+    generator: torch.Generator | Sequence[torch.Generator] | None = None,
 ) -> EncodedConditions:
     """Encode the input image and lighting maps (one batched VAE call) and the CLIP embedding.
 
@@ -236,7 +236,9 @@ def encode_conditions(
         model: the networks; inputs are cast to the VAE's / CLIP's device and dtype.
         conditions: `[B, 3, H, W]` image and maps in [0, 1], H = W = `model.config.resolution`.
         latent_mode: "mode" (default, deterministic) or "sample" (the authors' inference).
-        generator: RNG for `latent_mode="sample"`.
+        generator: RNG for `latent_mode="sample"`: one, or a list of B (one per item; item b's
+            generator draws its image, HDR and LDR posterior noise in that order, so an item's
+            latents do not depend on the rest of the batch).
 
     Returns:
         Raw latents `[B, 4, h, w]` each and CLIP embeddings `[B, 1, D]`.
@@ -262,7 +264,13 @@ def encode_conditions(
         case "mode":
             latents = posterior.mode()
         case "sample":
-            latents = posterior.sample(generator=generator)
+            gen: Any = generator
+            if generator is not None and not isinstance(generator, torch.Generator):
+                gen = list(generator)
+                if len(gen) != b:
+                    raise ShapeError("generator", (len(gen),), f"[{b}] (one generator per item)")
+                gen = gen * 3  # [3B]: image, HDR, LDR; each item's generator draws them in turn
+            latents = posterior.sample(generator=gen)
     # [3B, 4, h, w] -> three [B, 4, h, w]; raw posterior latents (no scaling factor, official impl. §1)
     image_latents, hdr_latents, ldr_latents = latents.split(b, dim=0)
 

@@ -6,10 +6,14 @@
 3. Pad to a square so that the object's longer side spans `object_fraction` (75%) of it, centred.
 4. Composite on white with the (straight) alpha: rgb * a + (1 - a).
 5. Resize to `size` x `size` (PIL bicubic, antialiased).
+
+`compat="neural-gaffer"` (`prepare_object_image_neural_gaffer`) follows the authors' real-image script
+step by step instead (issue 15, reading 3; docs/encodings.md lists the steps and our readings).
 """
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, assert_never
 
 import numpy as np
 import torch
@@ -21,6 +25,15 @@ from gaffer_diffusion.errors import InputValueError
 
 ALPHA_THRESHOLD = 0.5
 """Alpha above this counts as object when computing the bounding box."""
+
+PrepareCompat = Literal["default", "neural-gaffer"]
+"""How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps."""
+
+NG_THUMBNAIL = 512
+"""The authors shrink the photo to fit 512 x 512 (PIL `thumbnail`, LANCZOS) before segmenting it."""
+
+NG_OBJECT_FRACTION = 0.75
+"""Their framing: square side = int(longest box side / 0.75)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -106,14 +119,89 @@ def _to_unit(arr: np.ndarray, name: str) -> np.ndarray:
     return np.clip(a, 0.0, 1.0)
 
 
+def prepare_object_image_neural_gaffer(
+    rgb: np.ndarray, alpha: np.ndarray, *, size: int = 256
+) -> PreparedImage:
+    """The authors' real-image preparation (issue 15, reading 3), with the given alpha as SAM's mask.
+
+    1. Shrink to fit 512 x 512 (PIL `thumbnail`, LANCZOS; never enlarges). The photo is RGB there and
+       the mask is made afterwards on the shrunk photo; a mask given here goes through the same
+       `thumbnail` call as an 8-bit grey image (our reading: they have no full-size mask).
+    2. The tight box of alpha > 0 (h rows, w columns).
+    3. side = int(max(w, h) / 0.75) (truncation), a transparent black `side x side` RGBA square, the box
+       copied in at row side//2 - h//2, column side//2 - w//2 (row/column offsets of an array slice).
+    4. The RGBA square resized to `size` with PIL LANCZOS (PIL resamples RGBA premultiplied).
+    5. Composited on white in float64, rgb * a + (1 - a) with both in [0, 1], and truncated to uint8
+       (`astype(uint8)` of v * 255).
+
+    Args:
+        rgb: `[H, W, 3]` uint8 sRGB, straight colour.
+        alpha: `[H, W]` uint8 alpha or mask (white = object).
+        size: output side (their 256).
+
+    Returns:
+        `PreparedImage` with the uint8 result / 255, the resized alpha of step 4 as `mask`, and `bbox` in
+        the thumbnail's pixels.
+
+    Raises:
+        InputValueError: on non-uint8 input, mismatched shapes or an empty mask.
+    """
+    rgb_u8, a_u8 = np.asarray(rgb), np.asarray(alpha)
+    if rgb_u8.dtype != np.uint8 or a_u8.dtype != np.uint8:
+        raise InputValueError(
+            f"`rgb` / `alpha` are {rgb_u8.dtype} / {a_u8.dtype}; the authors' steps work on 8-bit "
+            "images: pass uint8 arrays (or read the file with `load_object_image`)."
+        )
+    if rgb_u8.ndim != 3 or rgb_u8.shape[2] != 3:
+        raise InputValueError(f"`rgb` has shape {rgb_u8.shape}, expected [H, W, 3].")
+    if a_u8.shape != rgb_u8.shape[:2]:
+        raise InputValueError(
+            f"`alpha` / mask has shape {a_u8.shape}, expected the image's {rgb_u8.shape[:2]}."
+        )
+    if size < 1:
+        raise InputValueError(f"`size` is {size}; expected >= 1 (their 256).")
+    lanczos = Image.Resampling.LANCZOS
+    photo, mask = Image.fromarray(rgb_u8, "RGB"), Image.fromarray(a_u8, "L")
+    photo.thumbnail((NG_THUMBNAIL, NG_THUMBNAIL), lanczos)
+    mask.thumbnail((NG_THUMBNAIL, NG_THUMBNAIL), lanczos)
+    rgba = np.dstack([np.asarray(photo), np.asarray(mask)])  # [h', w', 4] uint8
+    ys, xs = np.nonzero(rgba[..., 3] > 0)  # their box: every pixel with alpha > 0
+    if ys.size == 0:
+        raise InputValueError(
+            "The object mask is empty (no alpha / mask value above 0): nothing to relight. Check "
+            "the mask file or the image's alpha channel."
+        )
+    top, left = int(ys.min()), int(xs.min())
+    h, w = int(ys.max()) + 1 - top, int(xs.max()) + 1 - left
+    side = int(max(w, h) / NG_OBJECT_FRACTION)
+    square = np.zeros((side, side, 4), np.uint8)  # transparent black
+    row, col = side // 2 - h // 2, side // 2 - w // 2
+    square[row : row + h, col : col + w] = rgba[top : top + h, left : left + w]
+    small = np.asarray(Image.fromarray(square, "RGBA").resize((size, size), lanczos)) / 255.0
+    a = small[..., 3:]
+    on_white = ((small[..., :3] * a + (1.0 - a)) * 255).astype(np.uint8)  # truncation, as theirs
+    image = torch.from_numpy(on_white.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    mask_t = torch.from_numpy(a[..., 0].astype(np.float32))[None, None]
+    return PreparedImage(image=image.contiguous(), mask=mask_t, bbox=(top, left, top + h, left + w))
+
+
 def load_object_image(
     path: str | Path,
     *,
     mask_path: str | Path | None = None,
     size: int = 256,
     object_fraction: float = 0.75,
+    compat: PrepareCompat = "default",
 ) -> PreparedImage:
     """Read an image (PNG/JPG/...) and preprocess it; the mask comes from `mask_path` or the alpha.
+
+    Args:
+        path: the photo.
+        mask_path: a grey mask (white = object) for an image without alpha.
+        size: output side.
+        object_fraction: framing of `compat="default"` (the authors' is fixed at 0.75).
+        compat: "default" (`prepare_object_image`) or "neural-gaffer"
+            (`prepare_object_image_neural_gaffer`, the authors' steps).
 
     Raises:
         InputValueError: when the image has no alpha channel and no `mask_path` is given, or a file
@@ -140,7 +228,17 @@ def load_object_image(
             "object: pass `--mask MASK.png` (white = object), or save the image as an RGBA PNG with the "
             "background transparent. No segmentation model is downloaded automatically."
         )
-    return prepare_object_image(rgba[..., :3], alpha, size=size, object_fraction=object_fraction)
+    match compat:
+        case "default":
+            return prepare_object_image(
+                rgba[..., :3], alpha, size=size, object_fraction=object_fraction
+            )
+        case "neural-gaffer":
+            return prepare_object_image_neural_gaffer(
+                np.ascontiguousarray(rgba[..., :3]), np.ascontiguousarray(alpha), size=size
+            )
+        case _:
+            assert_never(compat)
 
 
 def object_square(alpha: np.ndarray, object_fraction: float) -> tuple[int, int, int]:

@@ -110,6 +110,11 @@ class RuntimeConfig:
         compile: wrap the UNet in `torch.compile` (first call is slow; worth it for many calls).
         compile_mode: `torch.compile` mode, e.g. "max-autotune"; None for the default.
         compile_backend: `torch.compile` backend ("inductor"; "eager" only checks the wiring).
+        autocast: keep the networks in float32 and run the UNet under `torch.autocast` in `dtype`
+            (float16 or bfloat16) instead of casting the weights: the authors' fp16 inference (issue
+            15, reading 4). The encoders and the VAE decoder stay float32 (our reading: they name
+            fp16 autocast for the UNet only). CLI: `--dtype float16` on CUDA with `--compat
+            neural-gaffer`.
     """
 
     device: str = "cpu"
@@ -118,6 +123,7 @@ class RuntimeConfig:
     compile: bool = False
     compile_mode: str | None = None
     compile_backend: str = "inductor"
+    autocast: bool = False
 
     def __post_init__(self) -> None:
         if self.dtype not in ("float32", "float16", "bfloat16"):
@@ -130,6 +136,17 @@ class RuntimeConfig:
             torch.device(self.device)
         except (RuntimeError, TypeError) as exc:
             raise ConfigError(f"`device` is {self.device!r}, not a torch device.") from exc
+        if self.autocast and self.dtype == "float32":
+            raise ConfigError(
+                "`autocast` is on with `dtype` 'float32'; autocast runs the UNet in a lower "
+                "precision: pass dtype 'float16' (the authors') or 'bfloat16'."
+            )
+
+    @property
+    def weights_dtype(self) -> torch.dtype:
+        """The dtype the weights (and the tensors between networks) are kept in: float32 under
+        `autocast`, else `torch_dtype`."""
+        return torch.float32 if self.autocast else self.torch_dtype
 
     @property
     def torch_dtype(self) -> torch.dtype:

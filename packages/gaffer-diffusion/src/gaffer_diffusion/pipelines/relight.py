@@ -81,7 +81,7 @@ class RelightPipeline:
 
     def __init__(self, model: NeuralGafferModel, runtime: RuntimeConfig | None = None) -> None:
         self.runtime = runtime or RuntimeConfig()
-        self.model = model.to(device=self.runtime.device, dtype=self.runtime.torch_dtype).eval()
+        self.model = model.to(device=self.runtime.device, dtype=self.runtime.weights_dtype).eval()
         match self.runtime.attention:
             case "sdpa":
                 self.model.unet.set_attn_processor(AttnProcessor2_0())
@@ -94,6 +94,8 @@ class RelightPipeline:
                 mode=self.runtime.compile_mode,
                 backend=self.runtime.compile_backend,
             )
+        if self.runtime.autocast:
+            self._unet = _under_autocast(self._unet, self.device.type, self.runtime.torch_dtype)
         self._fp32: NeuralGafferModel | None = None
 
     @property
@@ -103,22 +105,23 @@ class RelightPipeline:
 
     @property
     def dtype(self) -> torch.dtype:
-        """The dtype the networks run in."""
-        return self.runtime.torch_dtype
+        """The dtype the networks are kept in (float32 under `RuntimeConfig.autocast`)."""
+        return self.runtime.weights_dtype
 
     def encode(
         self,
         conditions: RelightingConditions,
         *,
         latent_mode: LatentMode = "mode",
-        generator: torch.Generator | None = None,
+        generator: torch.Generator | Sequence[torch.Generator] | None = None,
     ) -> EncodedConditions:
         """Encode image and lighting once (one batched VAE call + CLIP); reuse for many seeds.
 
         Args:
             conditions: `[B, 3, H, W]` image and lighting maps in [0, 1].
             latent_mode: posterior "mode" (default) or "sample" (the authors' inference).
-            generator: RNG for `latent_mode="sample"`.
+            generator: RNG for `latent_mode="sample"`: one, or one per item (each draws its item's
+                image, HDR and LDR posterior noise in that order).
 
         Returns:
             `EncodedConditions` on the pipeline's device and dtype.
@@ -306,7 +309,9 @@ class RelightPipeline:
             return self._mirror_mean(
                 conditions, sampling, num_images_per_condition, generator, seeds, callback
             )
-        enc_gen = generator if isinstance(generator, torch.Generator) else None
+        enc_gen = self._posterior_generators(
+            conditions.batch_size, sampling, num_images_per_condition, generator, seeds
+        )
         encoded = self.encode(conditions, latent_mode=sampling.latent_mode, generator=enc_gen)
         out = self.sample(
             encoded,
@@ -323,6 +328,45 @@ class RelightPipeline:
         m = conditions.mask.to(out.images.device, torch.float32).repeat_interleave(k, dim=0)
         # lerp keeps NaN from the model, so the finiteness checks downstream still see it
         return dataclasses.replace(out, images=torch.lerp(x, out.images, m))
+
+    def _posterior_generators(
+        self,
+        batch_size: int,
+        sampling: SamplingConfig,
+        k: int,
+        generator: GeneratorArg,
+        seeds: Sequence[int] | None,
+    ) -> torch.Generator | list[torch.Generator] | None:
+        """RNG of the posterior samples of `latent_mode="sample"` (issue 15, reading 4).
+
+        The authors hand one seeded generator per item to their pipeline, which draws the initial
+        noise and then the posterior samples from it. With `seeds`, each condition gets a CPU
+        generator seeded with its (first output's) seed and advanced past that output's initial
+        noise, so the posterior noise continues the noise's stream, is independent of the batch and
+        reproducible, and `latent_mode="mode"` with the same seed starts from the same z_T. With
+        `generator` the posterior noise is drawn from it (per item for a list) before the initial
+        noise. Nothing for `latent_mode="mode"`.
+        """
+        if sampling.latent_mode == "mode":
+            return None
+        if seeds is not None:
+            if len(seeds) != batch_size * k:
+                raise ConfigError(
+                    f"`seeds` has {len(seeds)} entries; expected one per image ({batch_size * k})."
+                )
+            gens = [
+                torch.Generator("cpu").manual_seed(int(seeds[b * k])) for b in range(batch_size)
+            ]
+            self.initial_noise(batch_size, generator=gens)  # advance each stream past its z_T
+            return gens
+        if generator is None or isinstance(generator, torch.Generator):
+            return generator
+        gens = list(generator)
+        if len(gens) != batch_size * k:
+            raise ConfigError(
+                f"`generator` is a list of {len(gens)}; expected one per image ({batch_size * k})."
+            )
+        return gens[::k]
 
     def _mirror_mean(
         self,
@@ -372,6 +416,19 @@ class RelightPipeline:
                 image_encoder=m.image_encoder,
             )
         return self._fp32
+
+
+def _under_autocast(
+    unet: Callable[..., object], device_type: str, dtype: torch.dtype
+) -> Callable[..., object]:
+    """`unet` called under `torch.autocast(device_type, dtype)`: float32 weights, low-precision
+    matmuls and convolutions (the authors' fp16 UNet, official implementation §2)."""
+
+    def call(*args: object, **kwargs: object) -> object:
+        with torch.autocast(device_type=device_type, dtype=dtype):
+            return unet(*args, **kwargs)
+
+    return call
 
 
 def _denoise(
