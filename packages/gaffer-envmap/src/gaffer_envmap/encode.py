@@ -6,8 +6,9 @@
 Two modes:
 - `compat="neural-gaffer"`: the authors' exact pipeline (`compat.py`), uint8-quantised, for the released
   checkpoint.
-- `compat="default"`: rotation straight to the `size x size` grid with area filtering in linear space
-  (power within ~1% at the default supersampling, exact with `renormalize=True`), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
+- `compat="default"`: rotation straight to the `size x size` grid in linear space with the power-exact
+  "conservative" filter (`conservative.py`: total power per channel kept to float round-off, no global
+  gain), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
   normaliser taken from the SOURCE map (its peak after the same pre-filter), so it does not change as the
   camera turns, and the relative brightness of different maps survives... up to each map's own peak.
   See docs/encodings.md for a side-by-side figure.
@@ -34,8 +35,8 @@ from gaffer_envmap.rotate import (
     Filter,
     as_radiance_batch,
     as_rotations,
-    prefilter_height,
     rotate_channels_first,
+    source_height,
 )
 
 Compat = Literal["default", "neural-gaffer"]
@@ -127,7 +128,7 @@ def encode_lighting(
     size: int = 256,
     compat: Compat = "default",
     spin_deg: "float | Tensor" = 0.0,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     quantize: bool = False,
     device: "torch.device | str | None" = None,
@@ -174,9 +175,9 @@ def encode_lighting(
         raise GafferEnvmapError(f"`compat` must be 'default' or 'neural-gaffer', got {compat!r}.")
     if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
         src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
-    ss = supersample if filter == "area" else 1
-    if filter == "area":
-        src = resize_conservative_torch(src, prefilter_height(src.shape[1], size, size, ss))
+    src = resize_conservative_torch(
+        src, source_height(filter, src.shape[1], size, size, supersample)
+    )
     rotated = rotate_channels_first(
         src,
         rot,

@@ -30,13 +30,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from gaffer_envmap.conservative import conservative_height, rotate_conservative
 from gaffer_envmap.conventions import row_solid_angle
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError, PoseError, ShapeError
 from gaffer_envmap.poses import W2CBlender, check_rotation
 from gaffer_envmap.resample import resize_conservative_torch
 
-Filter = Literal["area", "bilinear"]
+Filter = Literal["conservative", "area", "bilinear"]
 Pairing = Literal["outer", "zip"]
 
 
@@ -218,13 +219,22 @@ def prefilter_height(src_height: int, out_height: int, out_width: int, ss: int) 
     return h
 
 
+def source_height(filter: Filter, src_height: int, out_h: int, out_w: int, ss: int) -> int:
+    """Height of the (conservatively pre-downsampled) source that `filter` reads."""
+    if filter == "conservative":
+        return conservative_height(src_height, out_h, out_w, ss)
+    if filter == "area":
+        return prefilter_height(src_height, out_h, out_w, ss)
+    return src_height
+
+
 def rotate_to_camera(
     envmap: "EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor",
     w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
     *,
     height: int | None = None,
     width: int | None = None,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | Tensor" = 0.0,
@@ -238,8 +248,11 @@ def rotate_to_camera(
         w2c_blender: Blender world-to-camera poses, `[P, 3, 4]` (or 3x3 / 4x4, or `W2CBlender`s).
         height: output rows (default: the source's). The model's maps use height = width = 256.
         width: output columns (default 2 * height). Any width works; a 2:1 map has square pixels.
-        filter: "area" (default; solid-angle-weighted box over each output pixel) or "bilinear".
-        supersample: s for s x s sub-samples per output pixel (area filter; >= 1).
+        filter: "conservative" (default; power-exact per channel and per map, see `conservative`),
+            "area" (solid-angle-weighted box of bilinear sub-samples; power off by up to a few percent for
+            sub-pixel suns) or "bilinear" (one tap per pixel).
+        supersample: s for s x s sub-samples per output pixel (conservative: s rows and as many columns as
+            keep them square; area: s x s; >= 1).
         renormalize: rescale each map so output power equals source power exactly (area filter; off by
             default because the gain also moves the sky when a small sun is under-sampled).
         spin_deg: extra turn of the light about world up (counter-clockwise from above), scalar or `[P]`.
@@ -271,8 +284,10 @@ def rotate_to_camera(
         )
     if pairing not in ("outer", "zip"):
         raise GafferEnvmapError(f"`pairing` must be 'outer' or 'zip', got {pairing!r}.")
-    if filter not in ("area", "bilinear"):
-        raise GafferEnvmapError(f"`filter` must be 'area' or 'bilinear', got {filter!r}.")
+    if filter not in ("conservative", "area", "bilinear"):
+        raise GafferEnvmapError(
+            f"`filter` must be 'conservative', 'area' or 'bilinear', got {filter!r}."
+        )
     if supersample < 1:
         raise GafferEnvmapError(f"`supersample` must be >= 1, got {supersample}.")
     out_h = he if height is None else int(height)
@@ -299,7 +314,7 @@ def rotate_channels_first(
     out_h: int,
     out_w: int,
     *,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | Tensor" = 0.0,
@@ -309,6 +324,8 @@ def rotate_channels_first(
 
     Returns channels-first `[M, P, 3, h, w]` (outer) or `[B, 3, h, w]` (zip), the layout networks use.
     """
+    if filter == "conservative":
+        return _rotate_conservative_pairs(src, rot, out_h, out_w, supersample, spin_deg, pairing)
     ss = supersample if filter == "area" else 1
     he = src.shape[1]
     if filter == "area":
@@ -359,6 +376,28 @@ def _exact_permutations(
         else:
             out[p] = torch.roll(src[p], -k, dims=2)
     return out
+
+
+def _rotate_conservative_pairs(
+    src: Tensor,
+    rot: Tensor,
+    out_h: int,
+    out_w: int,
+    ss: int,
+    spin_deg: "float | Tensor",
+    pairing: Pairing,
+) -> Tensor:
+    """`filter="conservative"` for both pairings (outer pairs every map with every pose first)."""
+    src = resize_conservative_torch(src, conservative_height(src.shape[1], out_h, out_w, ss))
+    m = rot.to(torch.float64) @ _spin_matrix(spin_deg, rot.shape[0], rot.device).transpose(1, 2)
+    n_maps, n_rot = src.shape[0], m.shape[0]
+    if pairing == "outer":
+        pairs = src[:, None].expand(-1, n_rot, -1, -1, -1).reshape(-1, *src.shape[1:])
+        out, _ = rotate_conservative(pairs, m.repeat(n_maps, 1, 1), out_h, out_w, ss)
+        out = out.reshape(n_maps, n_rot, *out.shape[1:])
+    else:
+        out, _ = rotate_conservative(src, m, out_h, out_w, ss)
+    return _exact_permutations(out, src.permute(0, 3, 1, 2), rot, spin_deg, pairing)
 
 
 _IDENTITY_LAYOUT = ((1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, -1.0, 0.0))
