@@ -101,3 +101,22 @@ def test_cuda_fp16_autocast_matches_float32() -> None:
     out = pipe(cond, SAMPLE, seeds=[0, 1]).images
     assert out.device.type == "cuda" and next(pipe.model.unet.parameters()).dtype == torch.float32
     assert float((out.cpu() - ref).abs().max()) < 0.1
+
+
+def test_cli_defaults_follow_the_compat_reading() -> None:
+    from gaffer_diffusion.cli import _latent_mode, _parser, _runtime
+
+    def parse(*extra: str):
+        return _parser().parse_args(["relight", "x.png", "--out", "o.png", *extra])
+
+    assert _latent_mode(parse("--compat", "neural-gaffer")) == "sample"
+    assert _latent_mode(parse("--checkpoint", "ckpt")) == "sample"  # the authors' by default
+    assert _latent_mode(parse()) == "mode"  # gaffer-tiny: unchanged
+    assert _latent_mode(parse("--compat", "neural-gaffer", "--latent-mode", "mode")) == "mode"
+    cuda = ("--device", "cuda", "--dtype", "float16")
+    assert _runtime(parse("--compat", "neural-gaffer", *cuda)).autocast
+    assert not _runtime(parse("--compat", "default", *cuda)).autocast
+    assert not _runtime(parse("--compat", "neural-gaffer", "--dtype", "float16")).autocast  # CPU
+    assert not _runtime(parse("--compat", "neural-gaffer", *cuda, "--no-autocast")).autocast
+    with pytest.raises(ConfigError, match="--dtype float16"):
+        _runtime(parse("--autocast"))

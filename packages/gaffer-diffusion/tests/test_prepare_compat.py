@@ -122,3 +122,32 @@ def test_prepare_errors() -> None:
         prepare_object_image_neural_gaffer(rgb, np.zeros_like(alpha))
     with pytest.raises(InputValueError, match="shape"):
         prepare_object_image_neural_gaffer(rgb, alpha[:-1])
+
+
+def test_cli_prepare_writes_their_steps_and_the_mask(tmp_path: Path, capsys) -> None:
+    from gaffer_diffusion.cli import main
+
+    h, w, box = PHOTOS["thumbnailed"]
+    rgb, alpha = _photo(h, w, box)
+    Image.fromarray(np.dstack([rgb, alpha])).save(tmp_path / "obj.png")
+    out = tmp_path / "prep.png"
+    assert (
+        main(["prepare", str(tmp_path / "obj.png"), "--compat", "neural-gaffer", "--out", str(out)])
+        == 0
+    )
+    with Image.open(out) as im:
+        got = np.asarray(im)
+    within_1, exact = _agree(got, reference_prepare_neural_gaffer(rgb, alpha))
+    assert got.shape == (256, 256, 3) and within_1 >= 0.999 and exact >= 0.999
+    with Image.open(tmp_path / "prep_mask.png") as im:
+        assert im.mode == "L" and im.size == (256, 256)
+    # the default reading is a different picture
+    assert main(["prepare", str(tmp_path / "obj.png"), "--out", str(tmp_path / "ours.png")]) == 0
+    with Image.open(tmp_path / "ours.png") as im:
+        assert _agree(np.asarray(im), got)[1] < 0.99
+    Image.fromarray(rgb).save(tmp_path / "rgb.png")
+    assert (
+        main(["prepare", str(tmp_path / "rgb.png"), "--compat", "neural-gaffer", "--out", str(out)])
+        == 2
+    )
+    assert "--mask" in capsys.readouterr().err

@@ -12,6 +12,9 @@
     gaffer-diffusion evaluate --dataset DIR --checkpoint CKPT [--base-model DIR] [--envmaps DIR]
         [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
     gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
+    gaffer-diffusion prepare IMAGE --out OUT.png [--mask M] [--compat neural-gaffer|default]
+        (the model-ready square input on white and OUT_mask.png)
+    gaffer-diffusion check --checkpoint DIR --base-model DIR   (validate the authors' release first)
     gaffer-diffusion init-random --preset tiny --out DIR   (random weights in our format, for demos)
     gaffer-diffusion train --config CONFIG.json [--resume]   (extra [train]; configs/ has examples)
 
@@ -25,14 +28,19 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, get_args
 
 import numpy as np
 import torch
 from PIL import Image
 
 from gaffer_diffusion import pretrained
-from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions, lighting_from_envmap
+from gaffer_diffusion.conditioning import (
+    LatentMode,
+    LightingMaps,
+    RelightingConditions,
+    lighting_from_envmap,
+)
 from gaffer_diffusion.configs import PRESETS, get_preset
 from gaffer_diffusion.errors import (
     ConfigError,
@@ -48,7 +56,7 @@ from gaffer_diffusion.loading import (
 )
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
-from gaffer_diffusion.preprocess import load_object_image
+from gaffer_diffusion.preprocess import PrepareCompat, load_object_image
 from gaffer_diffusion.schedulers import SCHEDULERS
 
 if TYPE_CHECKING:
@@ -248,6 +256,8 @@ def _parser() -> argparse.ArgumentParser:
         help="skip the bundled HDRIs that have no ground-truth render",
     )
 
+    _add_authors_commands(sub)
+
     i = sub.add_parser(
         "init-random", help="save a random-weight model in our format (demos, tests)"
     )
@@ -297,6 +307,20 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
     p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     p.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
+    p.add_argument(
+        "--autocast",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="keep float32 weights and run the UNet under torch.autocast in --dtype (default: on "
+        "for --dtype float16 on CUDA with --compat neural-gaffer, as the authors run it)",
+    )
+    p.add_argument(
+        "--latent-mode",
+        choices=get_args(LatentMode),
+        default=None,
+        help="conditioning latents: a posterior 'sample' seeded per item (the authors'; default "
+        "with --compat neural-gaffer) or the posterior 'mode' (deterministic; default otherwise)",
+    )
     p.add_argument(
         "--full-frame",
         action="store_true",
@@ -418,6 +442,41 @@ def _sampling(args: argparse.Namespace) -> SamplingConfig:
         scheduler=args.scheduler,
         average_samples=average or 1,
         mirror_average=bool(mirror),
+        latent_mode=_latent_mode(args),
+    )
+
+
+def _latent_mode(args: argparse.Namespace) -> Any:
+    """`--latent-mode`, else the authors' posterior sample under `--compat neural-gaffer` (issue 15)."""
+    if args.latent_mode is not None:
+        return args.latent_mode
+    return "sample" if _compat(args) == "neural-gaffer" else "mode"
+
+
+def _runtime(args: argparse.Namespace) -> RuntimeConfig:
+    """Device and precision; `--dtype float16` on CUDA under `--compat neural-gaffer` autocasts the
+    UNet with float32 weights, as the authors run it (official implementation §2)."""
+    autocast = args.autocast
+    if autocast is None:
+        autocast = (
+            args.dtype == "float16"
+            and str(args.device).startswith("cuda")
+            and _compat(args) == "neural-gaffer"
+        )
+    if autocast and args.dtype == "float32":
+        raise ConfigError(
+            "`--autocast` runs the UNet in lower precision: add `--dtype float16` (the authors') or "
+            "`--dtype bfloat16`."
+        )
+    return RuntimeConfig(device=args.device, dtype=args.dtype, autocast=bool(autocast))
+
+
+def _background_note(args: argparse.Namespace) -> str:
+    """The background choice, named in every relight report (issue 15, reading 5)."""
+    if args.full_frame:
+        return "background: the model's full frame (--full-frame, the authors' protocol)"
+    return (
+        "background: the input's, kept outside its alpha (--full-frame for the authors' full frame)"
     )
 
 
@@ -433,11 +492,11 @@ def _relight(args: argparse.Namespace) -> int:
     if args.envmaps is not None and (args.envmap is not None or args.ldr is not None):
         raise ConfigError("Pass `--envmaps DIR` or `--envmap` / `--ldr --hdr`, not both.")
     model = _load_model(args.checkpoint, args.base_model)
-    pipe = RelightPipeline(model, RuntimeConfig(device=args.device, dtype=args.dtype))
+    pipe = RelightPipeline(model, _runtime(args))
     if grid:
         return _relight_grid(args, pipe)
     size = model.config.resolution
-    prepared = load_object_image(args.image, mask_path=args.mask, size=size)
+    prepared = load_object_image(args.image, mask_path=args.mask, size=size, compat=_compat(args))
     lighting = _lighting(args, size, args.turntable)
     sampling = _sampling(args)
     n = lighting.batch_size
@@ -461,10 +520,12 @@ def _relight(args: argparse.Namespace) -> int:
         for k, frame in enumerate(frames):
             _save_png(Path(f"{stem}_{k:03d}.png"), frame)
         video = write_animation([_to_uint8(f) for f in frames], stem, fmt=args.video, fps=args.fps)
-        print(f"wrote {len(frames)} frames {stem}_000.png ... and {video}")
+        print(
+            f"wrote {len(frames)} frames {stem}_000.png ... and {video}; {_background_note(args)}"
+        )
     else:
         _save_png(args.out, frames[0])
-        print(f"wrote {args.out}")
+        print(f"wrote {args.out}; {_background_note(args)}")
     return 0
 
 
@@ -494,7 +555,7 @@ def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
     prepared = []
     for path in images:
         mask = args.mask / path.name if args.mask is not None and args.mask.is_dir() else args.mask
-        prepared.append(load_object_image(path, mask_path=mask, size=size))
+        prepared.append(load_object_image(path, mask_path=mask, size=size, compat=_compat(args)))
     if args.envmaps is not None:
         maps = _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
         lights = [(m.stem, _envmap_lighting(args, m, size)) for m in maps]
@@ -520,7 +581,10 @@ def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
             for (i, e), image in zip(chunk, out.images.cpu(), strict=True):
                 _save_png(args.out / images[i].stem / f"{lights[e][0]}.png", image)
             bar.update(len(chunk))
-    print(f"wrote {len(jobs)} images ({len(images)} inputs x {len(lights)} maps) under {args.out}")
+    print(
+        f"wrote {len(jobs)} images ({len(images)} inputs x {len(lights)} maps) under {args.out}; "
+        f"{_background_note(args)}"
+    )
     return 0
 
 
@@ -594,7 +658,7 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
     )
     perceptual = _perceptual_arg(args)
     model = _load_model(args.checkpoint, args.base_model)
-    pipe = RelightPipeline(model, RuntimeConfig(device=args.device, dtype=args.dtype))
+    pipe = RelightPipeline(model, _runtime(args))
     config = EvaluationConfig(
         sampling=_sampling(args),
         seed=args.seed,
@@ -689,6 +753,58 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_authors_commands(sub: Any) -> None:
+    """`prepare` and `check` (issue 15): what the model sees, and whether the authors' files are complete."""
+    pr = sub.add_parser(
+        "prepare", help="write the model-ready square input (on white) and its mask, as PNGs"
+    )
+    pr.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
+    pr.add_argument("--mask", type=Path, help="object mask (white = object) for an RGB image")
+    pr.add_argument("--out", type=Path, required=True, help="output PNG (the mask: OUT_mask.png)")
+    pr.add_argument(
+        "--compat",
+        choices=get_args(PrepareCompat),
+        default="default",
+        help="'neural-gaffer': the authors' real-image steps (thumbnail 512, alpha > 0 box, "
+        "int(side / 0.75), LANCZOS on RGBA, white, truncation); 'default': ours",
+    )
+    pr.add_argument("--size", type=int, default=256, help="output side (the model resolution)")
+    ck = sub.add_parser(
+        "check",
+        help="validate the authors' checkpoint-80000/ and a Zero-1-to-3 XL base before a long run",
+    )
+    ck.add_argument(
+        "--checkpoint", type=Path, required=True, help="checkpoint-80000/ or its parent"
+    )
+    ck.add_argument(
+        "--base-model", type=Path, required=True, help="Zero-1-to-3 XL diffusers folder"
+    )
+
+
+def _prepare(args: argparse.Namespace) -> int:
+    if args.size < 1:
+        raise ConfigError(
+            f"`--size` is {args.size}; expected >= 1 (the model resolution, e.g. 256)."
+        )
+    prepared = load_object_image(
+        args.image, mask_path=args.mask, size=args.size, compat=args.compat
+    )
+    mask_out = args.out.with_name(f"{args.out.stem}_mask.png")
+    _save_png(args.out, prepared.image[0])
+    arr = (prepared.mask[0, 0].clamp(0, 1).numpy() * 255.0).round().astype(np.uint8)
+    Image.fromarray(arr).save(mask_out)
+    print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat})")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from gaffer_diffusion.release_check import check_release
+
+    result = check_release(args.checkpoint, args.base_model)
+    print(result.report())
+    return 0 if result.ok else 2
+
+
 def _init_random(args: argparse.Namespace) -> int:
     model = get_preset(args.preset).setup(seed=args.seed)
     save_pretrained(model, args.out)
@@ -745,6 +861,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _evaluate(args)
             case "init-random":
                 return _init_random(args)
+            case "prepare":
+                return _prepare(args)
+            case "check":
+                return _check(args)
             case "train":
                 return _train(args)
             case "export":

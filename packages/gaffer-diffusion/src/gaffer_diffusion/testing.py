@@ -8,6 +8,7 @@ written without Blender.
 import dataclasses
 import json
 import math
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -60,8 +61,31 @@ def write_fake_zero123(
     (directory / "scheduler").mkdir(exist_ok=True)
     sched = {"_class_name": "DDIMScheduler", **dataclasses.asdict(model.config.scheduler)}
     (directory / "scheduler" / "scheduler_config.json").write_text(json.dumps(sched))
+    # Zero123's pose projection (CLIP embedding + 4 pose numbers -> embedding): the real base ships it
+    # and lists it in model_index.json; Neural Gaffer drops it, so nothing may read it
+    d = model.config.unet.cross_attention_dim
+    (directory / "cc_projection").mkdir(exist_ok=True)
+    (directory / "cc_projection" / "config.json").write_text(
+        json.dumps({"_class_name": "CCProjection", "in_channel": d + 4, "out_channel": d})
+    )
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed + 1)
+        proj = {"projection.weight": torch.randn(d, d + 4), "projection.bias": torch.zeros(d)}
+    save_file(proj, str(directory / "cc_projection" / "diffusion_pytorch_model.safetensors"))
     (directory / "model_index.json").write_text(
-        json.dumps({"_class_name": "Zero1to3StableDiffusionPipeline"})
+        json.dumps(
+            {
+                "_class_name": "Zero1to3StableDiffusionPipeline",
+                "_diffusers_version": "0.18.0",
+                "cc_projection": ["pipeline_zero1to3", "CCProjection"],
+                "feature_extractor": ["transformers", "CLIPImageProcessor"],
+                "image_encoder": ["transformers", "CLIPVisionModelWithProjection"],
+                "scheduler": ["diffusers", "DDIMScheduler"],
+                "unet": ["diffusers", "UNet2DConditionModel"],
+                "vae": ["diffusers", "AutoencoderKL"],
+            },
+            indent=2,
+        )
     )
     return directory
 
@@ -69,7 +93,12 @@ def write_fake_zero123(
 def write_fake_authors_checkpoint(
     model: NeuralGafferModel, directory: Path, *, file_format: str = "safetensors"
 ) -> Path:
-    """A fake `checkpoint-80000/` folder: `model`'s UNet state dict only, as accelerate saves it.
+    """A fake `checkpoint-80000/` folder laid out as accelerate's save-state in the release.
+
+    `model`'s UNet state dict (plain diffusers keys) as `model.safetensors` or `pytorch_model.bin`,
+    plus the training state that sits beside it and must be ignored: `optimizer.bin`,
+    `scheduler.bin`, `scaler.pt` (small torch files) and `random_states_0.pkl` (a pickle that nothing
+    may unpickle).
 
     Args:
         model: whose UNet to save.
@@ -82,7 +111,14 @@ def write_fake_authors_checkpoint(
         save_file(state, str(directory / "model.safetensors"))
     else:
         torch.save(state, directory / "pytorch_model.bin")
-    (directory / "random_states_0.pkl").write_bytes(b"")
+    torch.save(
+        {"state": {}, "param_groups": [{"lr": 1e-4, "params": []}]}, directory / "optimizer.bin"
+    )
+    torch.save({"last_epoch": 80000, "_step_count": 80001}, directory / "scheduler.bin")
+    torch.save(
+        {"scale": 65536.0, "growth_factor": 2.0, "_growth_tracker": 0}, directory / "scaler.pt"
+    )
+    (directory / "random_states_0.pkl").write_bytes(pickle.dumps({"step": 80000, "python": None}))
     return directory
 
 
