@@ -120,3 +120,35 @@ def test_cli_defaults_follow_the_compat_reading() -> None:
     assert not _runtime(parse("--compat", "neural-gaffer", *cuda, "--no-autocast")).autocast
     with pytest.raises(ConfigError, match="--dtype float16"):
         _runtime(parse("--autocast"))
+
+
+def test_cli_turntable_frames_are_the_authors_frames_in_order(tmp_path) -> None:
+    """`relight --turntable N --compat neural-gaffer`: frame k is their frame k of N (issue 15, 1)."""
+    import numpy as np
+
+    from gaffer_diffusion.cli import _envmap_lighting, _parser
+    from gaffer_envmap import EnvironmentMap, orbit_w2c_blender, write_envmap
+    from gaffer_envmap.testing import reference_neural_gaffer
+
+    env = (np.random.default_rng(0).random((16, 32, 3)) ** 4 * 20).astype(np.float32)
+    write_envmap(tmp_path / "sky.exr", EnvironmentMap(radiance_linear=env))
+    light = ["--envmap", str(tmp_path / "sky.exr"), "--azimuth", "30", "--elevation", "10"]
+    args = _parser().parse_args(
+        [
+            "relight",
+            "x.png",
+            "--out",
+            "o.png",
+            *light,
+            "--compat",
+            "neural-gaffer",
+            "--turntable",
+            "4",
+        ]
+    )
+    maps = _envmap_lighting(args, tmp_path / "sky.exr", 32, 4)
+    ldr = torch.round(maps.ldr * 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    pose = orbit_w2c_blender(30, 10).matrix
+    for k in range(4):
+        ref, _ = reference_neural_gaffer(env, pose, 32, frame=k, num_frames=4)
+        assert np.array_equal(ldr[k], ref), k
