@@ -17,6 +17,7 @@
     gaffer-diffusion check --checkpoint DIR --base-model DIR   (validate the authors' release first)
     gaffer-diffusion init-random --preset tiny --out DIR   (random weights in our format, for demos)
     gaffer-diffusion train --config CONFIG.json [--resume]   (extra [train]; configs/ has examples)
+    gaffer-diffusion app [--host 127.0.0.1] [--port 7860] [--model DIR]   (extra [app]: the browser app)
 
 `--checkpoint` is either our format (a folder with `gaffer_model.json`) or the authors' release
 (`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
@@ -35,6 +36,7 @@ import torch
 from PIL import Image
 
 from gaffer_diffusion import pretrained
+from gaffer_diffusion.app.config import add_app_arguments
 from gaffer_diffusion.conditioning import (
     LatentMode,
     LightingMaps,
@@ -272,6 +274,12 @@ def _parser() -> argparse.ArgumentParser:
     x.add_argument("checkpoint", type=Path, help="a checkpoint-NNNNNNNN/ folder of a training run")
     x.add_argument("--out", type=Path, required=True, help="destination model folder")
     x.add_argument("--raw", action="store_true", help="the trained weights instead of the EMA")
+
+    add_app_arguments(
+        sub.add_parser(
+            "app", help="relight a photo in the browser (extra [app], Gradio; 127.0.0.1)"
+        )
+    )
 
     t = sub.add_parser("train", help="train the UNet on gaffer-data renders (extra [train])")
     t.add_argument("--config", type=Path, required=True, help="training config JSON (see configs/)")
@@ -869,6 +877,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _train(args)
             case "export":
                 return _export(args)
+            case "app":
+                from gaffer_diffusion.app import run_app  # Gradio loads only here
+
+                return run_app(args)
     except GafferDiffusionError as exc:
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
         return 2
