@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -38,7 +40,33 @@ def tests(session: nox.Session) -> None:
     """All packages' CPU tests plus cross-package tests (bpy renders included, GPU/weights excluded)."""
     _install(session, "torch==2.13.0", "numpy==1.26.4")
     _install(session, *TEST_SPECS, *TEST_TOOLS)
+    _install_browser(session)
     session.run("pytest", *session.posargs, env={"PYTHONHASHSEED": "0"})
+
+
+BROWSER_PACKAGES = ("chromium", "chromium-driver")
+"""Debian packages of the app's real-browser test (gaffer-diffusion tests/app/test_app_browser.py)."""
+
+
+def _install_browser(session: nox.Session) -> None:
+    """Install Chromium and its driver through apt-get when missing, as root on Debian (CI); else the
+    browser test skips and says why. Quiet: apt's output is shown only when it fails."""
+    if shutil.which("chromium") and shutil.which("chromedriver"):
+        return
+    if not hasattr(os, "geteuid") or os.geteuid() != 0 or shutil.which("apt-get") is None:
+        session.log("Chromium missing and no root apt-get here: the app's browser test will skip")
+        return
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    for cmd in (
+        ["apt-get", "update", "-qq"],
+        ["apt-get", "install", "-y", "-qq", *BROWSER_PACKAGES],
+    ):
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+        if done.returncode != 0:
+            session.warn(f"{' '.join(cmd)} failed ({done.returncode}); the browser test will skip:")
+            session.warn((done.stdout + done.stderr)[-2000:])
+            return
+    session.log(f"installed {', '.join(BROWSER_PACKAGES)} for the app's browser test")
 
 
 @nox.session

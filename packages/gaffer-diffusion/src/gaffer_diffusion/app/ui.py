@@ -32,6 +32,9 @@ DEFAULT_HDRI = "sunrise"
 ENVMAP_SUFFIXES = (".exr", ".hdr")
 """Uploads the environment-map field accepts (gaffer-envmap reads both)."""
 
+OUTPUT_BUTTONS: list[Any] = ["download", "fullscreen"]
+"""Buttons on result images (no "share": that uploads to Hugging Face Spaces)."""
+
 KEEP_JOBS = 8
 """Output folders kept on disk; older ones are deleted (Gradio has copied what the page shows)."""
 
@@ -276,6 +279,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     ldr = gr.Image(
                         label="E_L (LDR, camera frame)",
                         interactive=False,
+                        buttons=OUTPUT_BUTTONS,
                         format="png",
                         elem_id="ldr",
                         height=140,
@@ -283,6 +287,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     hdr = gr.Image(
                         label="E_H (log HDR, camera frame)",
                         interactive=False,
+                        buttons=OUTPUT_BUTTONS,
                         format="png",
                         elem_id="hdr",
                         height=140,
@@ -291,6 +296,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     label="Environment seen from the camera (centre-left: behind the object; "
                     "centre-right: behind the camera)",
                     interactive=False,
+                    buttons=OUTPUT_BUTTONS,
                     format="png",
                     elem_id="camera_view",
                     height=140,
@@ -321,6 +327,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             prepared = gr.Image(
                 label="Model input (object crop on white)",
                 interactive=False,
+                buttons=OUTPUT_BUTTONS,
                 type="filepath",
                 elem_id="prepared",
                 height=256,
@@ -328,16 +335,23 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             prepared_mask = gr.Image(
                 label="Mask used",
                 interactive=False,
+                buttons=OUTPUT_BUTTONS,
                 type="filepath",
                 elem_id="prepared_mask",
                 height=256,
             )
             relit = gr.Image(
-                label="Relit", interactive=False, type="filepath", elem_id="relit", height=256
+                label="Relit",
+                interactive=False,
+                buttons=OUTPUT_BUTTONS,
+                type="filepath",
+                elem_id="relit",
+                height=256,
             )
             spin_gif = gr.Image(
                 label="Turntable",
                 interactive=False,
+                buttons=OUTPUT_BUTTONS,
                 type="filepath",
                 elem_id="turntable_gif",
                 height=256,

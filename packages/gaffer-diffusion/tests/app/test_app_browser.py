@@ -1,0 +1,106 @@
+"""The app in a real browser: Debian's Chromium, headless, driven by Selenium.
+
+Uploads the example photo, turns the azimuth slider (the E_L preview must change), clicks Relight
+and waits for the relit image; saves a screenshot (`GAFFER_TEST_ARTIFACTS`, else the test's tmp
+folder). Skips, saying why, where Chromium or its driver is missing; `nox -s tests` installs both.
+"""
+
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+WAIT_S = 120.0
+"""Longest wait for one page change (first load compiles nothing, but CI machines are busy)."""
+
+
+def _binaries() -> tuple[str, str]:
+    browser = shutil.which("chromium") or shutil.which("chromium-browser")
+    driver = shutil.which("chromedriver")
+    if browser is None or driver is None:
+        pytest.skip(
+            "Chromium or chromedriver is not installed: apt-get install chromium chromium-driver "
+            "(nox -s tests does this when run as root on Debian)"
+        )
+    return browser, driver
+
+
+@pytest.fixture
+def browser(tmp_path: Path) -> Any:
+    pytest.importorskip(
+        "selenium", reason='the browser test needs selenium: pip install "gaffer-diffusion[all]"'
+    )
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    chromium, chromedriver = _binaries()
+    os.environ.setdefault("SE_AVOID_STATS", "true")  # Selenium Manager stays offline and quiet
+    options = webdriver.ChromeOptions()
+    options.binary_location = chromium
+    for arg in (
+        "--headless=new",
+        "--no-sandbox",  # CI runs as root
+        "--disable-dev-shm-usage",
+        "--disable-gpu",
+        "--window-size=1280,1500",
+        "--hide-scrollbars",
+        f"--user-data-dir={tmp_path / 'chromium-profile'}",
+    ):
+        options.add_argument(arg)
+    driver = webdriver.Chrome(service=Service(executable_path=chromedriver), options=options)
+    yield driver
+    driver.quit()
+
+
+def _artifact_dir(tmp_path: Path) -> Path:
+    out = Path(os.environ.get("GAFFER_TEST_ARTIFACTS", tmp_path))
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def test_relight_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> None:
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.common.keys import Keys
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from gaffer_diffusion.pretrained import example_dataset_path
+
+    photo = sorted((example_dataset_path() / "objects").iterdir())[0] / "lit" / "000_000.png"
+    wait = WebDriverWait(browser, WAIT_S)
+    t0 = time.perf_counter()
+    browser.get(app_server.url)
+
+    def src(css: str) -> Any:
+        def check(driver: Any) -> str | bool:
+            found = driver.find_elements(By.CSS_SELECTOR, css)
+            return bool(found) and (found[0].get_attribute("src") or False)
+
+        return check
+
+    first_ldr = wait.until(src("#ldr img"))  # the page's load event drew the previews
+    upload = wait.until(
+        ec.presence_of_element_located((By.CSS_SELECTOR, "#photo input[type=file]"))
+    )
+    upload.send_keys(str(photo))
+    wait.until(src("#photo img"))
+    slider = wait.until(ec.element_to_be_clickable((By.CSS_SELECTOR, "#azimuth input[type=range]")))
+    slider.send_keys(*([Keys.ARROW_RIGHT] * 45))
+    wait.until(lambda d: (src("#ldr img")(d) or first_ldr) != first_ldr)
+    browser.find_element(By.CSS_SELECTOR, "#relight").click()
+    relit = wait.until(src("#relit img"))
+    status = wait.until(
+        ec.text_to_be_present_in_element((By.CSS_SELECTOR, "#status"), "Relit with")
+    )
+    seconds = time.perf_counter() - t0
+    assert status and relit
+    assert int(slider.get_attribute("value")) == 45
+    shot = _artifact_dir(tmp_path) / "app_browser.png"
+    browser.save_screenshot(str(shot))
+    assert shot.stat().st_size > 10_000
+    print(f"browser test: page to relit image in {seconds:.1f} s; screenshot {shot}")
