@@ -4,7 +4,7 @@ Each call here mirrors `gaffer-diffusion relight` (cli.py): `load_object_image` 
 puts it on white at the model size, `lighting_from_envmap` rotates the map into the camera frame and
 splits it into E_L / E_H (Neural Gaffer §3.2), `RelightPipeline` samples with the model's own
 suggested settings (`demo.sampling_for`), and the input's background is kept outside its mask. The
-page (`ui.py`) only turns these results into widgets, so the API and the browser see the same pixels.
+page (`_ui.py`) only turns these results into widgets, so the API and the browser see the same pixels.
 """
 
 import logging
@@ -108,13 +108,22 @@ class RelightResult:
 
 
 @dataclass(frozen=True, kw_only=True)
-class _Model:
+class ReadyModel:
+    """A picker entry's model, ready to sample.
+
+    Attributes:
+        loaded: the networks and their suggested settings.
+        pipe: the sampling pipeline on the app's device.
+        compat: the lighting encoding the model was trained with.
+    """
+
     loaded: LoadedModel
     pipe: RelightPipeline
     compat: CompatMode
 
     @property
     def size(self) -> int:
+        """The model's square input and output side, pixels."""
         return int(self.loaded.model.config.resolution)
 
 
@@ -134,7 +143,7 @@ class Engine:
     def __init__(self, config: AppConfig) -> None:
         self.config = config
         self._choices = {m.label: m for m in config.models}
-        self._models: dict[str, _Model] = {}
+        self._models: dict[str, ReadyModel] = {}
         self._envmaps: OrderedDict[tuple[str, float], Any] = OrderedDict()
         self._load_lock = threading.Lock()
         self._sample_lock = threading.Lock()
@@ -145,7 +154,7 @@ class Engine:
         """The picker's entries, the default first."""
         return list(self._choices)
 
-    def model(self, label: str) -> _Model:
+    def model(self, label: str) -> ReadyModel:
         """The model behind a picker entry, loaded once.
 
         Raises:
@@ -162,7 +171,7 @@ class Engine:
                 self._models[label] = self._load(choice)
             return self._models[label]
 
-    def _load(self, choice: ModelChoice) -> _Model:
+    def _load(self, choice: ModelChoice) -> ReadyModel:
         if choice.base_model is not None and choice.checkpoint is not None:
             result = load_authors_release(choice.checkpoint, choice.base_model)
             logger.info("%s", result.report.summary())
@@ -172,13 +181,13 @@ class Engine:
         pipe = RelightPipeline(loaded.model, RuntimeConfig(device=self.config.device))
         # A model's own encoding (gaffer-tiny: gaffer-envmap's default); others: the authors' (as relight).
         compat: CompatMode = loaded.suggested_compat or "neural-gaffer"
-        return _Model(loaded=loaded, pipe=pipe, compat=compat)
+        return ReadyModel(loaded=loaded, pipe=pipe, compat=compat)
 
     def envmap(self, path: str | Path) -> Any:
         """Read (and cache) an equirectangular `.exr`/`.hdr` map, checking its size.
 
         Raises:
-            EnvmapReadError, ShapeError: from gaffer-envmap (unreadable file, not 2:1).
+            gaffer_envmap.errors.GafferEnvmapError: an unreadable file, a map that is not 2:1.
             InputValueError: a map wider than `max_image_side`.
         """
         from gaffer_envmap.io import read_envmap

@@ -52,8 +52,8 @@ def serve(config: AppConfig) -> int:
             import torch
 
             torch.set_num_threads(config.threads)
+        from gaffer_diffusion.app._ui import build_app
         from gaffer_diffusion.app.engine import Engine
-        from gaffer_diffusion.app.ui import build_app
 
         engine = Engine(config)
         engine.model(engine.model_labels[0])  # load the default model before the page opens
