@@ -13,7 +13,7 @@ from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.loading import MANIFEST_NAME
 
 GAFFER_TINY_LABEL = "gaffer-tiny (shipped)"
-"""The model picker's default entry: the model shipped inside the package."""
+"""The model picker's default entry, the model shipped inside the package."""
 
 
 @dataclass(frozen=True, kw_only=True)

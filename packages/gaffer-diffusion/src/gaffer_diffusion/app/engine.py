@@ -35,7 +35,7 @@ from gaffer_diffusion.preprocess import PreparedImage, load_object_image
 logger = logging.getLogger(__name__)
 
 CAMERA_VIEW_HEIGHT = 128
-"""Rows of the camera-frame panorama preview (2:1, so 256 columns): enough to see where the sun is."""
+"""Rows of the camera-frame panorama preview (twice as many columns), enough to see where the sun is."""
 
 BATCH_SIZE = 4
 """Turntable frames per sampling call (as `gaffer-diffusion relight --batch-size`'s default)."""
