@@ -127,3 +127,24 @@ def test_pole_groups_only_near_the_poles() -> None:
     groups = conservative.row_groups(128, 256, conservative.sample_spacing(64, 128, 2))
     assert groups[0] > 1 and groups[-1] > 1 and groups[64] == 1
     assert all(256 % k == 0 for k in groups)
+
+
+@pytest.mark.parametrize("ss", [1, 2])
+def test_fused_cpu_kernel_matches_the_torch_twin(ss: int) -> None:
+    """`encode_lighting`'s numba kernel against `rotate_conservative` + the torch encodings (the twin).
+    Polynomial trig/log shift sample positions by ~1e-6 rad: measured max difference 6e-4 on real maps."""
+    from gaffer_envmap.encode import _encode_finite, encode_lighting
+    from gaffer_envmap.resample import resize_conservative_torch
+
+    rng = np.random.default_rng(11)
+    maps = np.stack([smooth_random_map(32, seed=s).radiance_linear for s in range(2)])
+    maps[1, 3, 7] = 500.0  # a one-texel sun
+    poses = np.stack([_random_rotation(rng) for _ in range(2)])
+    fast = encode_lighting(maps, poses, size=24, supersample=ss)
+    src = torch.from_numpy(maps)
+    src = resize_conservative_torch(src, conservative.conservative_height(32, 24, 24, ss))
+    rad, _ = conservative.rotate_conservative(src, torch.from_numpy(poses), 24, 24, ss)
+    ldr, hdr = _encode_finite(rad, src.amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1))
+    torch.testing.assert_close(fast.ldr, ldr, atol=2e-3, rtol=0)
+    torch.testing.assert_close(fast.hdr, hdr, atol=2e-3, rtol=0)
+    assert float((fast.ldr - ldr).abs().mean()) < 1e-4

@@ -175,6 +175,19 @@ def encode_lighting(
         raise GafferEnvmapError(f"`compat` must be 'default' or 'neural-gaffer', got {compat!r}.")
     if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
         src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
+    if filter == "conservative" and src.device.type == "cpu" and src.dtype == torch.float32:
+        # The fused numba kernel (`_fast_cpu`); `conservative.rotate_conservative` is its twin.
+        from gaffer_envmap._fast_cpu import encode_conservative_cpu
+        from gaffer_envmap.rotate import _spin_matrix
+
+        m = rot.to(torch.float64) @ _spin_matrix(spin_deg, rot.shape[0], rot.device).transpose(1, 2)
+        ldr_np, hdr_np = encode_conservative_cpu(
+            src.contiguous().numpy(), m.numpy(), size, supersample, torch.get_num_threads()
+        )
+        ldr, hdr = torch.from_numpy(ldr_np), torch.from_numpy(hdr_np)
+        if quantize:
+            ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
+        return LightingEncoding(ldr=ldr, hdr=hdr, compat=compat)
     src = resize_conservative_torch(
         src, source_height(filter, src.shape[1], size, size, supersample)
     )
