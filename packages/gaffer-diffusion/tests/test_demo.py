@@ -112,9 +112,14 @@ def test_metrics_json_has_scores_baselines_and_timings(demo_out) -> None:
     assert m["turntable"]["frames"] == FRAMES and m["turntable"]["gif"] == "turntable.gif"
 
 
-def test_target_maps_are_the_evaluation_maps_and_the_turntable_starts_there(example) -> None:
+def test_target_maps_are_the_evaluation_maps_and_the_turntable_spins_the_most_directional_hdri(
+    example,
+) -> None:
+    from gaffer_diffusion.conditioning import lighting_from_envmap
     from gaffer_diffusion.demo import _lightings, _read_example
     from gaffer_diffusion.evaluation import pair_lighting
+    from gaffer_envmap import directionality
+    from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
 
     ex = _read_example(example, "auto", 64)
     config = DemoConfig(out=Path("unused"), frames=4, extra_hdris=False)
@@ -125,8 +130,21 @@ def test_target_maps_are_the_evaluation_maps_and_the_turntable_starts_there(exam
     ref = pair_lighting(ex.pairs, 64, "neural-gaffer")
     torch.testing.assert_close(torch.cat([j.maps.ldr for j in targets]), ref.ldr)
     torch.testing.assert_close(torch.cat([j.maps.hdr for j in targets]), ref.hdr)
-    torch.testing.assert_close(frames[0].maps.ldr, targets[0].maps.ldr, atol=1e-5, rtol=0)
+    # the turntable spins the bundled HDRI whose diffuse light changes most about up, from spin 0
+    scores = {n: directionality(read_bundled_hdri(n), about_up=True) for n in bundled_hdris()}
+    best = max(scores, key=scores.__getitem__)
+    assert frames[0].label.startswith(f"{best}, spun 0 deg")
+    w2c = torch.tensor(ex.w2c_blender[None])
+    first = lighting_from_envmap(read_bundled_hdri(best), w2c, size=64, compat="neural-gaffer")
+    torch.testing.assert_close(frames[0].maps.ldr, first.ldr, atol=1e-5, rtol=0)
     assert not torch.allclose(frames[1].maps.hdr, frames[0].maps.hdr)
+    # a named one wins; an unknown name is refused before any sampling
+    named = _lightings(
+        ex, DemoConfig(out=Path("u"), frames=2, turntable_hdri="studio"), 64, "default"
+    )
+    assert [j.label.split(",")[0] for j in named if j.kind == "turntable"] == ["studio"] * 2
+    with pytest.raises(ConfigError, match="turntable_hdri"):
+        _lightings(ex, DemoConfig(out=Path("u"), frames=2, turntable_hdri="nope"), 64, "default")
 
 
 def test_demo_is_batch_invariant(tmp_path, model_dir, example, demo_out) -> None:

@@ -88,3 +88,26 @@ def test_describe_reports_power_and_direction() -> None:
     assert info.nan_count == 1 and info.negative_count == 1 and info.inf_count == 0
     assert info.dominant_direction[1] > 0.99 and info.brightest_pixel_direction[1] > 0.99
     assert info.max_value == pytest.approx(float(env.radiance_linear.max()))
+
+
+def test_directionality_is_zero_for_a_uniform_sky_and_two_for_a_sun() -> None:
+    from gaffer_envmap.sh import directionality
+
+    uniform = EnvironmentMap(radiance_linear=np.full((64, 128, 3), 0.7, np.float32))
+    assert directionality(uniform) == pytest.approx(0.0, abs=1e-6)
+    # a small sun: the irradiance is max(0, n.d) times its power, whose band-1 / band-0 ratio is 2
+    d_sun = np.array([0.3, 0.4, 0.866]) / np.linalg.norm([0.3, 0.4, 0.866])
+    sun = disc_sun_map(256, d_sun, radius_deg=2.0, radiance=1e3)
+    assert directionality(sun) == pytest.approx(2.0, rel=0.01)
+    # a sun over a sky sits between, wherever the sun is
+    mixed = disc_sun_map(256, d_sun, radius_deg=2.0, radiance=1e3, sky=0.5)
+    d = directionality(mixed)
+    assert 0.1 < d < 1.9
+    moved = disc_sun_map(256, np.array([-0.8, 0.0, -0.6]), radius_deg=2.0, radiance=1e3, sky=0.5)
+    assert directionality(moved) == pytest.approx(d, rel=0.01)
+    # spinning about up moves only the horizontal part: a sun at the zenith gives a turntable nothing
+    zenith = disc_sun_map(256, np.array([0.0, 0.0, 1.0]), radius_deg=2.0, radiance=1e3)
+    assert directionality(zenith) == pytest.approx(2.0, rel=0.01)
+    assert directionality(zenith, about_up=True) == pytest.approx(0.0, abs=1e-3)
+    horizon = disc_sun_map(256, np.array([1.0, 0.0, 0.0]), radius_deg=2.0, radiance=1e3)
+    assert directionality(horizon, about_up=True) == pytest.approx(2.0, rel=0.01)

@@ -21,7 +21,7 @@
 
 `--checkpoint` is either our format (a folder with `gaffer_model.json`) or the authors' release
 (`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
-Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 64 px model shipped in the package.
+Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 128 px model shipped in the package.
 """
 
 import argparse
@@ -111,7 +111,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--checkpoint",
         type=Path,
-        help="our model folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 64 px)",
+        help="our model folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 128 px)",
     )
     r.add_argument(
         "--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)"
@@ -222,6 +222,11 @@ def _parser() -> argparse.ArgumentParser:
         "default: off, gaffer-tiny: its model card's setting)",
     )
     d.add_argument("--frames", type=int, default=24, help="turntable frames (0: none)")
+    d.add_argument(
+        "--turntable-hdri",
+        default=None,
+        help="bundled HDRI the turntable spins (default: the one whose light changes most with the spin)",
+    )
     d.add_argument("--fps", type=float, default=12.0, help="turntable GIF frames per second")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--batch-size", type=int, default=8, help="images per sampling call")
@@ -230,7 +235,7 @@ def _parser() -> argparse.ArgumentParser:
         "--threads",
         type=int,
         default=1,
-        help="torch CPU threads (default 1: the 64 px model gains little from more, and on a busy "
+        help="torch CPU threads (default 1: the small model gains little from more, and on a busy "
         "2-core machine 2 OpenMP threads ran 20x slower than 1)",
     )
     d.add_argument(
@@ -742,6 +747,7 @@ def _demo(args: argparse.Namespace) -> int:
         average_samples=args.average_samples,
         mirror_average=args.mirror_average,
         frames=args.frames,
+        turntable_hdri=args.turntable_hdri,
         fps=args.fps,
         seed=args.seed,
         batch_size=args.batch_size,

@@ -1,6 +1,6 @@
 """The end-to-end relighting demo (README's main job): `gaffer-diffusion demo --out DIR`.
 
-Offline and CPU-friendly. It loads gaffer-tiny (the 64 px model shipped inside this package) or a
+Offline and CPU-friendly. It loads gaffer-tiny (the 128 px model shipped inside this package) or a
 `--checkpoint`, reads the shipped example object (a gaffer-data render: one view of a held-out object
 with ground-truth renders under the bundled CC0 HDRIs), and relights the object's input view
 
@@ -8,7 +8,8 @@ with ground-truth renders under the bundled CC0 HDRIs), and relights the object'
    raw and channel-aligned, beside two baselines: the unrelit input, and the input channel-aligned to
    the target),
 2. under every other bundled HDRI (no ground truth: pictures only),
-3. under the first target lighting spun about world up over `frames` steps (a turntable GIF).
+3. under a bundled HDRI spun about world up over `frames` steps (a turntable GIF; by default the
+   HDRI whose diffuse light changes most with the spin, `DemoConfig.turntable_hdri`).
 
 All lightings go through the same batched sampling calls with one seed (a result does not depend on
 the batch it landed in). It writes, under `out`: the images as PNGs (`inputs/`, `lighting/`, `relit/`,
@@ -73,7 +74,7 @@ DEFAULT_STEPS = 50
 DEFAULT_GUIDANCE = 3.0
 """Guidance scale when neither `guidance_scale` nor the model suggests one (paper: 3)."""
 GIF_SCALE = 4
-"""Nearest-neighbour upscale of the 64 px turntable frames in the GIF, so that it is watchable."""
+"""Nearest-neighbour upscale of the model-size turntable frames in the GIF, so that it is watchable."""
 
 InputChoice = InputLighting | Literal["auto"]
 """The input render of the example view: a lighting index, "area", or "auto" (area when rendered)."""
@@ -98,6 +99,10 @@ class DemoConfig:
         mirror_average: average with the mirrored input (`SamplingConfig.mirror_average`); None:
             the model's suggestion, else off.
         frames: turntable frames (0: no turntable).
+        turntable_hdri: the bundled HDRI the turntable spins; None: the one whose diffuse light
+            changes most when spun about up (`gaffer_envmap.directionality(about_up=True)`), since
+            under a sky that is nearly the same from every side even a perfect model's turntable
+            would stand still.
         fps: turntable GIF frames per second.
         seed: the initial-noise seed of every image.
         batch_size: images per sampling call.
@@ -124,6 +129,7 @@ class DemoConfig:
     average_samples: int | None = None
     mirror_average: bool | None = None
     frames: int = 24
+    turntable_hdri: str | None = None
     fps: float = 12.0
     seed: int = 0
     batch_size: int = 8
@@ -314,7 +320,6 @@ class _Example:
     targets: Tensor  # [P, 3, S, S] on white
     masks: Tensor  # [P, 1, S, S]
     w2c_blender: np.ndarray  # [3, 4]
-    turntable_label: str
 
 
 def _require_gaffer_data() -> None:
@@ -380,7 +385,6 @@ def _read_example(
         targets=_chw(np.stack(targets)),
         masks=torch.from_numpy(np.stack(masks))[:, None].float().contiguous(),
         w2c_blender=np.asarray(first.lighting.w2c_blender, np.float64),
-        turntable_label=_label(first.lighting),
     )
 
 
@@ -446,6 +450,23 @@ class _Envmaps:
         return env
 
 
+def _turntable_hdri(name: str | None) -> tuple[str, Any]:
+    """The turntable's bundled HDRI (`DemoConfig.turntable_hdri`) and its map."""
+    from gaffer_envmap import directionality
+    from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
+
+    names = sorted(bundled_hdris())
+    if name is not None:
+        if name not in names:
+            raise ConfigError(
+                f"`turntable_hdri` (--turntable-hdri) is {name!r}; expected one of {names}."
+            )
+        return name, read_bundled_hdri(name)
+    maps = {n: read_bundled_hdri(n) for n in names}
+    best = max(names, key=lambda n: directionality(maps[n], about_up=True))
+    return best, maps[best]
+
+
 def _lightings(
     example: _Example, config: DemoConfig, size: int, compat: CompatMode
 ) -> list[_Lighting]:
@@ -477,19 +498,17 @@ def _lightings(
                 )
             )
     if config.frames:
-        lt = example.pairs[0].lighting
-        if not isinstance(lt, EnvmapLighting):
-            raise DatasetError(f"`{example.pairs[0].name}` has no environment map.")
+        name, env = _turntable_hdri(config.turntable_hdri)
         n = config.frames
         spin = torch.arange(n, dtype=torch.float64) * (360.0 / n)
         m = lighting_from_envmap(
-            envmaps.get(lt), w2c.expand(n, -1, -1), size=size, compat=compat, spin_deg=spin
+            env, w2c.expand(n, -1, -1), size=size, compat=compat, spin_deg=spin
         )
         for k in range(n):
             jobs.append(
                 _Lighting(
                     key=f"frame_{k:03d}",
-                    label=f"{_label(lt)}, spun {float(spin[k]):.0f} deg about world up",
+                    label=f"{name}, spun {float(spin[k]):.0f} deg about world up",
                     kind="turntable",
                     world_rgb=None,
                     maps=LightingMaps(ldr=m.ldr[k : k + 1], hdr=m.hdr[k : k + 1]),
@@ -836,7 +855,7 @@ def _metrics_document(
         "turntable": None
         if not config.frames
         else {
-            "lighting": example.turntable_label,
+            "lighting": next(j.label for j in jobs if j.kind == "turntable").split(",")[0],
             "frames": config.frames,
             "fps": config.fps,
             "gif": files["turntable"]["gif"],

@@ -44,6 +44,7 @@ _EXPORTS: dict[str, str] = {
     "flip_horizontal": "augment",
     "get_convention": "conventions",
     "hdr_encode": "encode",
+    "directionality": "sh",
     "irradiance": "sh",
     "latlong_to_cube": "cube",
     "ldr_encode": "encode",
@@ -133,7 +134,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
     from gaffer_envmap.rotate import rotate_to_camera
     from gaffer_envmap.sanitize import SanitizeReport, sanitize
-    from gaffer_envmap.sh import irradiance, project_sh, reconstruct_sh, sh_basis
+    from gaffer_envmap.sh import directionality, irradiance, project_sh, reconstruct_sh, sh_basis
     from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
 
 __all__ = [
@@ -167,6 +168,7 @@ __all__ = [
     "describe",
     "direction_grid",
     "direction_to_uv",
+    "directionality",
     "encode_lighting",
     "first_moment",
     "flip_horizontal",

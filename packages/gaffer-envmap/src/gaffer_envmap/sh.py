@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from gaffer_envmap.conventions import direction_grid, row_solid_angle
+from gaffer_envmap.conventions import direction_grid, get_convention, row_solid_angle
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError
 
@@ -109,6 +109,34 @@ def irradiance(
         )
     per_coeff = np.concatenate([np.full(2 * l + 1, a[l]) for l in range(order + 1)])
     return sh_basis(normals, order) @ (coeffs * per_coeff[:, None])
+
+
+def directionality(env: EnvironmentMap, *, about_up: bool = False) -> float:
+    """How strongly the map's diffuse lighting depends on the normal: 0 for a uniform sky, 2 for one sun.
+
+    The ratio of the band-1 to the band-0 term of the luminance irradiance, A_1 |L_1| Y_1 / (A_0 L_0
+    Y_0) (Ramamoorthi & Hanrahan 2001): the relative swing of the Lambertian shading between the lit
+    and the unlit side. Independent of the map's frame (a rotation keeps |L_1|).
+
+    Args:
+        env: the environment map.
+        about_up: count only the part of L_1 across the map's up axis, which is what a spin about up
+            moves: a turntable only shows the light turning under a map with a high value (the demo
+            picks its turntable lighting by it); a sun overhead scores 0.
+    """
+    coeffs = project_sh(env, order=1)  # [4, 3], band 1 = (y, z, x) in the map's frame
+    luminance = coeffs @ np.array([0.2126, 0.7152, 0.0722])  # Rec. 709, linear
+    l0 = float(luminance[0])
+    l1 = np.array([luminance[3], luminance[1], luminance[2]])  # (x, y, z)
+    if about_up:
+        up = np.asarray(get_convention(env.convention).up, float)
+        l1 = l1 - (l1 @ up) * up
+    if not l0 > 0:
+        return 0.0
+    a = cosine_lobe_coefficients(1)
+    # evaluated at the normal along L_1: Y_0 = 1 / (2 sqrt(pi)), band 1's peak sqrt(3 / (4 pi)),
+    # a ratio of sqrt(3)
+    return float(a[1] * np.linalg.norm(l1) * math.sqrt(3.0) / (a[0] * l0))
 
 
 def irradiance_brute_force(env: EnvironmentMap, normals: np.ndarray) -> np.ndarray:
