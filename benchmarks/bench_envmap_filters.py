@@ -5,6 +5,8 @@ uniformly random direction, so a random sub-pixel position; black sky) into a 25
 (layout "neural-gaffer-camera") for a uniformly random world-to-camera rotation R. Pipelines:
 
 - `bilinear`: `rotate_to_camera(filter="bilinear")`;
+- `conservative ss1, ss2`: `rotate_to_camera(filter="conservative", supersample=s)`, the power-exact
+  default since issue 18 (torch path, the fused kernel serves `encode_lighting` only);
 - `area ss1..ss4`: `rotate_to_camera(filter="area", supersample=s)` (with this source and output size the
   pre-downsample has nothing to do, so ss1 may coincide with bilinear; the JSON records whether it does);
 - `compat linear`: the authors' geometry on linear radiance: `compat.rotate_neural_gaffer` at source
@@ -45,7 +47,7 @@ OUT = 256
 SUN_RADIANCE = 1000.0
 RADIUS_DEG = (0.5, 2.0)
 
-Pipeline = Literal["bilinear", "area", "compat linear", "compat 8-bit"]
+Pipeline = Literal["bilinear", "area", "conservative", "compat linear", "compat 8-bit"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -58,7 +60,9 @@ class Config:
 
     @property
     def label(self) -> str:
-        return f"area ss{self.supersample}" if self.pipeline == "area" else self.pipeline
+        if self.pipeline in ("area", "conservative"):
+            return f"{self.pipeline} ss{self.supersample}"
+        return self.pipeline
 
     @property
     def name(self) -> str:
@@ -72,6 +76,8 @@ def configs() -> list[Config]:
         out += [Config(pipeline="area", supersample=s, renormalize=renorm) for s in (1, 2, 3, 4)]
         out.append(Config(pipeline="compat linear", renormalize=renorm))
         out.append(Config(pipeline="compat 8-bit", renormalize=renorm))
+    # Power-exact by construction: renormalisation would change nothing, so it is measured once.
+    out += [Config(pipeline="conservative", supersample=s) for s in (1, 2)]
     return out
 
 
@@ -145,6 +151,16 @@ def make_pipeline(cfg: Config) -> Callable[[torch.Tensor, np.ndarray, torch.Tens
                 filter="area",
                 supersample=cfg.supersample,
                 renormalize=cfg.renormalize,
+                pairing="zip",
+            )
+        if cfg.pipeline == "conservative":
+            return ge.rotate_to_camera(
+                src,
+                rot,
+                height=OUT,
+                width=OUT,
+                filter="conservative",
+                supersample=cfg.supersample,
                 pairing="zip",
             )
         if cfg.pipeline == "bilinear":
@@ -266,6 +282,8 @@ def plot(rows: list[dict[str, Any]], meta: dict[str, Any], quick: bool, floor_de
         "area ss4": "#8c2d04",
         "compat linear": "#6baed6",
         "compat 8-bit": "#08519c",
+        "conservative ss1": "#b15928",
+        "conservative ss2": "#6a3d9a",
     }
     fig, (ax_p, ax_d) = plt.subplots(2, 1, figsize=(11.0, 8.5), sharex=True)
     floor_p = 1e-9
