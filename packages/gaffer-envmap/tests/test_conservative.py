@@ -40,7 +40,7 @@ def _issue_case(trial: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("trial", range(4))
 def test_issue_case_power_is_exact_and_sun_lands_in_place(trial: int) -> None:
     env, sun, r = _issue_case(trial)
-    out = rotate_to_camera(env, r, height=64, width=128)[0, 0].numpy()
+    out = rotate_to_camera(env, r, height=64, width=128, filter="conservative")[0, 0].numpy()
     p_in = total_power(EnvironmentMap(radiance_linear=env))
     np.testing.assert_allclose(total_power(_cam(out)), p_in, rtol=1e-6)
     err = angle_deg(first_moment(_cam(out)), r @ sun)
@@ -69,13 +69,19 @@ def test_power_exact_per_channel_on_random_maps_and_pairings(
     rng = np.random.default_rng(he + h + w)
     maps = (rng.random((2, he, 2 * he, 3)) ** 4 * 50).astype(np.float32)
     poses = np.stack([_random_rotation(rng) for _ in range(3)])
-    outer = rotate_to_camera(maps, poses, height=h, width=w, supersample=ss).double().numpy()
+    outer = (
+        rotate_to_camera(maps, poses, height=h, width=w, supersample=ss, filter="conservative")
+        .double()
+        .numpy()
+    )
     om_in = conservative.row_solid_angle(he, 2 * he)
     om_out = conservative.row_solid_angle(h, w)
     p_in = np.einsum("mhwc,h->mc", maps.astype(np.float64), om_in)
     p_out = np.einsum("mphwc,h->mpc", outer, om_out)
     np.testing.assert_allclose(p_out, np.broadcast_to(p_in[:, None], p_out.shape), rtol=1e-6)
-    zipped = rotate_to_camera(maps, poses[:2], height=h, width=w, supersample=ss, pairing="zip")
+    zipped = rotate_to_camera(
+        maps, poses[:2], height=h, width=w, supersample=ss, pairing="zip", filter="conservative"
+    )
     torch.testing.assert_close(zipped[1], torch.from_numpy(outer[1, 1]).float())
 
 
@@ -89,7 +95,9 @@ def test_unread_cells_are_splatted_not_dropped(monkeypatch: pytest.MonkeyPatch) 
     src = torch.from_numpy(env)[None]
     _, gain = conservative.rotate_conservative(src, torch.from_numpy(r)[None], 4, 8, 1)
     assert bool((gain == 0).any())  # the fallback really ran
-    out = rotate_to_camera(env, r, height=4, width=8, supersample=1)[0, 0].numpy()
+    out = rotate_to_camera(env, r, height=4, width=8, supersample=1, filter="conservative")[
+        0, 0
+    ].numpy()
     np.testing.assert_allclose(
         total_power(_cam(out)), total_power(EnvironmentMap(radiance_linear=env)), rtol=1e-6
     )
@@ -104,9 +112,9 @@ def test_constant_and_smooth_maps_stay_close_no_negatives() -> None:
     smooth = smooth_random_map(64, seed=2)
     for _ in range(3):
         r = _random_rotation(rng)
-        out = rotate_to_camera(ones, r, height=64, width=128)[0, 0].numpy()
+        out = rotate_to_camera(ones, r, height=64, width=128, filter="conservative")[0, 0].numpy()
         assert np.abs(out - 1).max() < 0.15 and out.min() > 0
-        a = rotate_to_camera(smooth, r, height=32)[0, 0].numpy()
+        a = rotate_to_camera(smooth, r, height=32, filter="conservative")[0, 0].numpy()
         b = rotate_to_camera(smooth, r, height=32, filter="area", supersample=4)[0, 0].numpy()
         # measured 2.4% relative RMS at 64 x 32 -> 32 x 64 (the ripple above, on a 1.15 mean)
         assert np.sqrt(np.mean((a - b) ** 2)) < 0.04 * np.sqrt(np.mean(b**2))
@@ -115,11 +123,13 @@ def test_constant_and_smooth_maps_stay_close_no_negatives() -> None:
 def test_identity_and_yaw_stay_bit_exact() -> None:
     rng = np.random.default_rng(4)
     env = rng.random((16, 32, 3)).astype(np.float32)
-    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C)[0, 0].numpy()
+    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C, filter="conservative")[0, 0].numpy()
     assert np.array_equal(out, env)
     a = math.radians(360.0 * 3 / 32)
     rz = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1.0]])
-    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ rz)[0, 0].numpy()
+    out = rotate_to_camera(env, IDENTITY_LAYOUT_W2C.rotation @ rz, filter="conservative")[
+        0, 0
+    ].numpy()
     assert np.array_equal(out, np.roll(env, -3, axis=1))
 
 
@@ -140,7 +150,7 @@ def test_fused_cpu_kernel_matches_the_torch_twin(ss: int) -> None:
     maps = np.stack([smooth_random_map(32, seed=s).radiance_linear for s in range(2)])
     maps[1, 3, 7] = 500.0  # a one-texel sun
     poses = np.stack([_random_rotation(rng) for _ in range(2)])
-    fast = encode_lighting(maps, poses, size=24, supersample=ss)
+    fast = encode_lighting(maps, poses, size=24, supersample=ss, filter="conservative")
     src = torch.from_numpy(maps)
     src = resize_conservative_torch(src, conservative.conservative_height(32, 24, 24, ss))
     rad, _ = conservative.rotate_conservative(src, torch.from_numpy(poses), 24, 24, ss)

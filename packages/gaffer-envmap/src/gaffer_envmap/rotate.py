@@ -234,7 +234,7 @@ def rotate_to_camera(
     *,
     height: int | None = None,
     width: int | None = None,
-    filter: Filter = "conservative",
+    filter: Filter = "area",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | Tensor" = 0.0,
@@ -248,9 +248,10 @@ def rotate_to_camera(
         w2c_blender: Blender world-to-camera poses, `[P, 3, 4]` (or 3x3 / 4x4, or `W2CBlender`s).
         height: output rows (default: the source's). The model's maps use height = width = 256.
         width: output columns (default 2 * height). Any width works; a 2:1 map has square pixels.
-        filter: "conservative" (default; power-exact per channel and per map, see `conservative`),
-            "area" (solid-angle-weighted box of bilinear sub-samples; power off by up to a few percent for
-            sub-pixel suns) or "bilinear" (one tap per pixel).
+        filter: "area" (default; solid-angle-weighted box of bilinear sub-samples; power off by up to a
+            few percent for sub-pixel suns), "conservative" (power-exact per channel and per map, see
+            `conservative`; opt-in: its per-cell gain ripples by about 10% on flat maps at supersample 2
+            and it is slower, so it is not yet the default, issue 18) or "bilinear" (one tap per pixel).
         supersample: s for s x s sub-samples per output pixel (conservative: s rows and as many columns as
             keep them square; area: s x s; >= 1).
         renormalize: rescale each map so output power equals source power exactly (area filter; off by
@@ -314,7 +315,7 @@ def rotate_channels_first(
     out_h: int,
     out_w: int,
     *,
-    filter: Filter = "conservative",
+    filter: Filter = "area",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | Tensor" = 0.0,
