@@ -88,7 +88,7 @@ def theirs_encode(
     # Step 2: d_world = d_local (A R), row vectors.
     d = d_local @ (_A @ np.asarray(w2c, np.float64)[:3, :3])
     # Step 4 (their lookup): Blender equirect, z up.
-    th2 = np.arccos(np.clip(d[..., 2], -1.0, 1.0))
+    th2 = np.arccos(np.clip(d[..., 2], -1.0, 1.0)) - 1e-6  # their theta offset (issue 15)
     ph2 = np.arctan2(d[..., 1], d[..., 0])
     grid = np.clip(np.stack([-ph2 / np.pi, 2 * th2 / np.pi - 1], -1), -(1 - 1e-7), 1 - 1e-7)
     img = torch.from_numpy(env).permute(2, 0, 1)[None].float()

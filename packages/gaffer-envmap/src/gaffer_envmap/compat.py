@@ -20,7 +20,7 @@ What we keep from our own code: the direction grid is cached per size and the ro
 change speed only, not a single output value (tests compare against `testing.reference_neural_gaffer`,
 which follows the reference step by step in torch). Against an independent numpy re-implementation of the
 same steps (benchmarks/bench_envmap_preprocess.py) a handful of uint8 values differ by one (3 of 6.3M in
-the committed run, which predates the theta offset: that script still omits it), from float rounding in
+the committed run, made before the script took the theta offset too), from float rounding in
 the bilinear weights and the power at a uint8 boundary; none differs by more. With the offset, the twin
 and this module differ in about 1 of 200K values of a 512x256 map (grid_sample's float32 weights), by one.
 An all-black map would divide by zero in step 4; here its HDR map is all zero, with a warning.
