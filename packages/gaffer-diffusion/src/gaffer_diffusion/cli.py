@@ -890,6 +890,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GafferDiffusionError as exc:
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
+        print(
+            "interrupted (Ctrl-C): stopped; files already written are complete "
+            "(train: --resume continues from the last checkpoint)",
+            file=sys.stderr,
+        )
+        return 130
+    except OSError as exc:  # an unwritable or clashing output path, a full disk
+        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
+        return 2
     except Exception as exc:  # errors from gaffer-envmap (reading EXRs, poses) carry their own fix
         if type(exc).__module__.startswith("gaffer_envmap"):
             print(f"error: {exc}", file=sys.stderr)

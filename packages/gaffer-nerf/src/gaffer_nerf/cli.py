@@ -361,6 +361,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
+        print("interrupted (Ctrl-C): stopped; files already written are complete", file=sys.stderr)
+        return 130
+    except OSError as exc:  # an unwritable or clashing output path, a full disk
+        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
