@@ -40,3 +40,15 @@ def test_demo_and_relight_accept_the_new_flags() -> None:
     assert d.compat == "default" and d.object_fraction == 0.8
     r = _parser().parse_args(["relight", "x.png", "--envmap", "e.exr", "--out", "o.png"])
     assert r.compat is None
+
+
+@pytest.mark.parametrize("flag", ["--steps", "--average-samples"])
+def test_an_explicit_zero_is_refused_not_read_as_the_default(flag) -> None:
+    from gaffer_diffusion.cli import _sampling
+
+    for ckpt in ([], ["--checkpoint", "somewhere"]):
+        args = _parser().parse_args(["relight", "x.png", "--out", "o.png", flag, "0", *ckpt])
+        with pytest.raises(ConfigError, match=flag):
+            _sampling(args)
+    ok = _sampling(_parser().parse_args(["relight", "x.png", "--out", "o.png"]))
+    assert ok.num_inference_steps == pretrained.GAFFER_TINY_STEPS

@@ -445,15 +445,16 @@ def _sampling(args: argparse.Namespace) -> SamplingConfig:
     steps, guidance, average = args.steps, args.guidance, args.average_samples
     mirror = args.mirror_average
     if getattr(args, "checkpoint", None) is None:  # gaffer-tiny: the settings it was evaluated with
-        steps = steps or pretrained.GAFFER_TINY_STEPS
+        steps = pretrained.GAFFER_TINY_STEPS if steps is None else steps
         guidance = pretrained.GAFFER_TINY_GUIDANCE if guidance is None else guidance
-        average = average or pretrained.GAFFER_TINY_AVERAGE_SAMPLES
+        average = pretrained.GAFFER_TINY_AVERAGE_SAMPLES if average is None else average
         mirror = pretrained.GAFFER_TINY_MIRROR_AVERAGE if mirror is None else mirror
+    # an explicit 0 is refused by SamplingConfig (it used to mean "the default" silently)
     return SamplingConfig(
-        num_inference_steps=steps or 50,
+        num_inference_steps=50 if steps is None else steps,
         guidance_scale=3.0 if guidance is None else guidance,
         scheduler=args.scheduler,
-        average_samples=average or 1,
+        average_samples=1 if average is None else average,
         mirror_average=bool(mirror),
         latent_mode=_latent_mode(args),
     )

@@ -268,12 +268,16 @@ def sampling_for(
         >>> s.num_inference_steps, s.guidance_scale
         (20, 3.0)
     """
-    steps = num_inference_steps or loaded.suggested_steps or DEFAULT_STEPS
+    steps = (
+        num_inference_steps
+        if num_inference_steps is not None
+        else loaded.suggested_steps or DEFAULT_STEPS
+    )
     if guidance_scale is None:
         guidance_scale = (
             DEFAULT_GUIDANCE if loaded.suggested_guidance is None else loaded.suggested_guidance
         )
-    average = average_samples or loaded.suggested_average or 1
+    average = average_samples if average_samples is not None else loaded.suggested_average or 1
     if mirror_average is None:
         mirror_average = bool(loaded.suggested_mirror)
     return SamplingConfig(

@@ -63,11 +63,11 @@ class SamplingConfig:
             or not 1 <= self.num_inference_steps <= 1000
         ):
             raise ConfigError(
-                f"`num_inference_steps` is {self.num_inference_steps!r}; expected an int in [1, 1000]."
+                f"`num_inference_steps` (--steps) is {self.num_inference_steps!r}; expected an int in [1, 1000]."
             )
         if not math.isfinite(self.guidance_scale) or self.guidance_scale < 0:
             raise ConfigError(
-                f"`guidance_scale` is {self.guidance_scale!r}; expected a finite value >= 0 (paper: 3)."
+                f"`guidance_scale` (--guidance) is {self.guidance_scale!r}; expected a finite value >= 0 (paper: 3)."
             )
         if not 0.0 <= self.eta <= 1.0:
             raise ConfigError(f"`eta` is {self.eta!r}; expected a value in [0, 1].")
@@ -85,7 +85,7 @@ class SamplingConfig:
             )
         if not isinstance(self.average_samples, int) or self.average_samples < 1:
             raise ConfigError(
-                f"`average_samples` is {self.average_samples!r}; expected an int >= 1."
+                f"`average_samples` (--average-samples) is {self.average_samples!r}; expected an int >= 1."
             )
         if self.average_samples > 1 and self.eta != 0.0:
             raise ConfigError(
