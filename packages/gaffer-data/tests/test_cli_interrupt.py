@@ -26,3 +26,14 @@ def test_one_line_and_an_exit_code(monkeypatch, capsys, exc, code, words) -> Non
     err = capsys.readouterr().err
     assert words in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [(["recipe", "r", "--procedural", "-1"], "--procedural"), (["recipe", ""], "`out` is empty")],
+)
+def test_recipe_refuses_nonsense_and_writes_nothing(tmp_path, monkeypatch, capsys, argv, words):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    assert words in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

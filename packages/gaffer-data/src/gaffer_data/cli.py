@@ -99,9 +99,14 @@ def _render_multiview(args: argparse.Namespace) -> int:
 
 
 def _recipe(args: argparse.Namespace) -> int:
+    from gaffer_data.errors import ConfigError
     from gaffer_data.recipes import build_default_recipe
 
-    recipe = build_default_recipe(args.out, procedural=args.procedural, seed=args.seed)
+    if args.procedural < 0:
+        raise ConfigError(f"`--procedural` is {args.procedural}; expected a count >= 0.")
+    if not args.out.strip():  # Path("") would be the current folder
+        raise ConfigError("`out` is empty; pass the folder to write the recipe into.")
+    recipe = build_default_recipe(Path(args.out), procedural=args.procedural, seed=args.seed)
     print(f"objects: {recipe.objects}\nenvmaps: {recipe.envmaps}")
     return 0
 
@@ -245,9 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.set_defaults(func=_render_multiview)
 
     c = sub.add_parser("recipe", help="write the embedded default recipe (no downloads)")
-    c.add_argument("out", type=Path)
-    c.add_argument("--procedural", type=int, default=8)
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("out", help="folder the recipe's objects/ and envmaps/ go into")
+    c.add_argument("--procedural", type=int, default=8, help="procedural objects to add (>= 0)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the procedural objects")
     c.set_defaults(func=_recipe)
 
     f = sub.add_parser("filter", help="compute features, apply rules and a classifier")

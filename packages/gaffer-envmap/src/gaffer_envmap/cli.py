@@ -21,6 +21,29 @@ from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 from gaffer_envmap.rotate import rotate_to_camera
 from gaffer_envmap.stats import describe, total_power
 
+
+def _finite_float(text: str) -> float:
+    """argparse type: a finite number (NaN or Inf would rotate every pixel into NaN)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    """argparse type: an int >= 1 (0 would silently write nothing)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
 log = logging.getLogger("gaffer_envmap")
 
 
@@ -209,10 +232,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--size", type=int, default=None, help="output height (width = 2*height); default: source"
     )
     sp.add_argument(
-        "--spin", type=float, default=0.0, help="extra turn of the light about world up, degrees"
+        "--spin",
+        type=_finite_float,
+        default=0.0,
+        help="extra turn of the light about world up, degrees",
     )
-    sp.add_argument("--filter", choices=["area", "bilinear"], default="area")
-    sp.add_argument("--supersample", type=int, default=2)
+    sp.add_argument(
+        "--filter",
+        choices=["area", "conservative", "bilinear"],
+        default="area",
+        help="area: box of bilinear sub-samples (default); conservative: power-exact per channel "
+        "(issue 18); bilinear: one tap per pixel",
+    )
+    sp.add_argument(
+        "--supersample",
+        type=_positive_int,
+        default=2,
+        help="sub-samples per output pixel side (area, conservative)",
+    )
     sp.set_defaults(func=_cmd_rotate)
 
     sp = sub.add_parser("encode", help="the model's ldr.png and hdr.png (size x size, 8-bit RGB)")
@@ -228,7 +265,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--size", type=int, default=256)
     sp.add_argument(
         "--spin",
-        type=float,
+        type=_finite_float,
         default=0.0,
         help="extra turn of the light about world up, degrees: counter-clockwise in the default "
         "mode; with --compat neural-gaffer the authors' turntable sense, D = their frame "
@@ -240,7 +277,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_src(sp)
     sp.add_argument("--out-dir", required=True)
     sp.add_argument("--flips", action="store_true", help="also write mirrored copies")
-    sp.add_argument("--yaw-steps", type=int, default=8)
+    sp.add_argument(
+        "--yaw-steps",
+        type=_positive_int,
+        default=8,
+        help="yaw turns per flip, evenly spaced over 360 degrees (1: no turn)",
+    )
     sp.set_defaults(func=_cmd_augment)
 
     sp = sub.add_parser(
