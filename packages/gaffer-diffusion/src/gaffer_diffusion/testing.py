@@ -317,8 +317,8 @@ def reference_prepare_neural_gaffer(
 
     The keyword arguments switch single steps to the readings the issue found in our old code, so
     tests can show each reading matters: `resample="bicubic"`, `alpha_threshold=127` (alpha > 0.5),
-    `side_rounding="ceil"`, `placement="centred-remainder"` ((side - h) // 2), `composite=
-    "before-resize"`, `quantize="round"`.
+    `side_rounding="ceil"`, `placement="centred-remainder"` ((side - h) // 2),
+    `composite="before-resize"`, `quantize="round"`.
 
     Args:
         rgb: `[H, W, 3]` uint8.

@@ -19,7 +19,13 @@ per 256 x 256 map; numba compiles the loops once (cached on disk) and needs no C
 """
 
 import math
+import os
 from functools import lru_cache
+
+# numba picks TBB first when it can import it; an old system TBB then only warns (and pytest turns
+# warnings into errors). The workqueue layer ships with numba, so choose it unless the user did
+# (numba reads this when it is first imported).
+os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
 
 import numba
 import numpy as np
