@@ -175,7 +175,13 @@ def _time_sampling(
 
 def speed_cuda(quick: bool, seed: int) -> list[dict[str, Any]]:
     """Ours vs the authors' settings on the GPU (50 DDIM steps, CFG 3), images per second."""
-    from gaffer_diffusion import RelightPipeline, RuntimeConfig, SamplingConfig, get_preset
+    from gaffer_diffusion import (
+        RelightPipeline,
+        RuntimeConfig,
+        SamplingConfig,
+        build_model,
+        get_preset,
+    )
 
     sampling_ours = SamplingConfig(num_inference_steps=50, guidance_scale=3.0)
     # their inference draws posterior samples for the conditioning latents (official impl. section 1)
@@ -202,7 +208,7 @@ def speed_cuda(quick: bool, seed: int) -> list[dict[str, Any]]:
         return row
 
     # theirs: fp32 weights + fp16 autocast, batch 4
-    model = get_preset("neural-gaffer-256").setup(seed=seed)
+    model = build_model(get_preset("neural-gaffer-256"), seed=seed)
     pipe = RelightPipeline(model, RuntimeConfig(device="cuda", dtype="float32", attention="sdpa"))
     theirs = record(
         "theirs (fp32 + fp16 autocast, SDPA)",
@@ -216,7 +222,7 @@ def speed_cuda(quick: bool, seed: int) -> list[dict[str, Any]]:
 
     batches = (1, 4, 16) if quick else (1, 4, 16, 64)
     for compiled in (False, True):
-        model = get_preset("neural-gaffer-256").setup(seed=seed)
+        model = build_model(get_preset("neural-gaffer-256"), seed=seed)
         runtime = RuntimeConfig(device="cuda", dtype="bfloat16", attention="sdpa", compile=compiled)
         t0 = time.perf_counter()
         pipe = RelightPipeline(model, runtime)
@@ -270,11 +276,11 @@ def speed_figure(
 
 
 def run_speed(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
-    from gaffer_diffusion import get_preset
+    from gaffer_diffusion import build_model, get_preset
 
     common.log(f"{NAME_SPEED}: building neural-gaffer-256 with random weights")
     t0 = time.perf_counter()
-    model = get_preset("neural-gaffer-256").setup(seed=args.seed)
+    model = build_model(get_preset("neural-gaffer-256"), seed=args.seed)
     build_s = time.perf_counter() - t0
     params = {
         name: sum(p.numel() for p in getattr(model, name).parameters())

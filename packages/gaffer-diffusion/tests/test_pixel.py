@@ -17,7 +17,7 @@ from gaffer_diffusion import (
 from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import CheckpointNotFoundError
 from gaffer_diffusion.loading import load_pretrained, model_config_matches, save_pretrained
-from gaffer_diffusion.models import PixelAutoencoder, build_vae
+from gaffer_diffusion.models import PixelAutoencoder, build_model, build_vae
 from gaffer_diffusion.testing import random_conditions
 
 
@@ -71,7 +71,7 @@ def test_pixel_config_downsampling_and_validation() -> None:
 
 
 def test_pipeline_runs_in_pixel_space_and_moves_dtype() -> None:
-    model = _small_pixel_config().setup(seed=0)
+    model = build_model(_small_pixel_config(), seed=0)
     pipe = RelightPipeline(model)
     out = pipe(random_conditions(2, 32), SamplingConfig(num_inference_steps=2), seeds=[0, 1])
     assert out.images.shape == (2, 3, 32, 32) and out.latents.shape == (2, 4, 32, 32)
@@ -82,7 +82,7 @@ def test_pipeline_runs_in_pixel_space_and_moves_dtype() -> None:
 
 
 def test_save_and_load_pixel_model(tmp_path: Path) -> None:
-    model = _small_pixel_config().setup(seed=0)
+    model = build_model(_small_pixel_config(), seed=0)
     save_pretrained(model, tmp_path / "m")
     vae_cfg = json.loads((tmp_path / "m" / "vae" / "config.json").read_text())
     assert vae_cfg["_class_name"] == "PixelAutoencoder" and vae_cfg["kind"] == "pixel"
@@ -105,7 +105,7 @@ def test_gaffer_tiny_preset_shapes() -> None:
         "CrossAttnDownBlock2D",
     )
     assert cfg.unet.up_block_types == ("CrossAttnUpBlock2D", "UpBlock2D", "UpBlock2D", "UpBlock2D")
-    model = cfg.setup(seed=0)
+    model = build_model(cfg, seed=0)
     n = sum(p.numel() for p in model.unet.parameters())
     assert 1_000_000 < n < 6_000_000  # float32 safetensors well under 25 MB
 
@@ -194,7 +194,7 @@ def test_v_prediction_pipeline_runs() -> None:
     cfg = dataclasses.replace(
         _small_pixel_config(), scheduler=SchedulerConfig(prediction_type="v_prediction")
     )
-    pipe = RelightPipeline(cfg.setup(seed=0))
+    pipe = RelightPipeline(build_model(cfg, seed=0))
     for scheduler in ("ddim", "dpmsolver++", "unipc"):
         out = pipe(
             random_conditions(1, 32),
@@ -226,13 +226,13 @@ def test_gaffer_tiny_samples_from_t999_at_any_step_count() -> None:
 def test_residual_target_round_trip_and_paper_default_unchanged() -> None:
     g = torch.Generator().manual_seed(0)
     target, image = torch.randn(2, 4, 8, 8, generator=g), torch.randn(2, 4, 8, 8, generator=g)
-    paper = get_preset("tiny").setup(seed=0)
+    paper = build_model(get_preset("tiny"), seed=0)
     assert not paper.config.residual
     # the paper's model: exactly the scaled target latent, as before the option existed
     assert torch.equal(paper.diffusion_target(target, image), target * 0.18215)
     assert torch.equal(paper.decodable_latents(target * 0.18215, image), target * 0.18215 / 0.18215)
     cfg = dataclasses.replace(_small_pixel_config(), residual=True)
-    model = cfg.setup(seed=0)
+    model = build_model(cfg, seed=0)
     z0 = model.diffusion_target(target, image)
     assert torch.equal(z0, target - image)
     torch.testing.assert_close(model.decodable_latents(z0, image), target)
@@ -241,7 +241,7 @@ def test_residual_target_round_trip_and_paper_default_unchanged() -> None:
 
 def test_residual_pipeline_adds_the_input_back_and_survives_save_load(tmp_path: Path) -> None:
     cfg = dataclasses.replace(_small_pixel_config(), residual=True)
-    model = cfg.setup(seed=0)
+    model = build_model(cfg, seed=0)
     cond = random_conditions(2, 32, seed=3)
     pipe = RelightPipeline(model)
     out = pipe(cond, SamplingConfig(num_inference_steps=2), seeds=[0, 1])
@@ -293,7 +293,7 @@ def test_zero_terminal_snr_removes_the_starting_noise_from_a_one_step_sample(
         s = make_scheduler(name, zsnr)
         assert float(s.alphas_cumprod[-1]) < 1e-6, name
     cfg = dataclasses.replace(_small_pixel_config(), residual=True, scheduler=zsnr)
-    model = cfg.setup(seed=0)
+    model = build_model(cfg, seed=0)
     save_pretrained(model, tmp_path / "m")
     loaded = load_pretrained(tmp_path / "m").model
     assert loaded.config.scheduler.rescale_betas_zero_snr

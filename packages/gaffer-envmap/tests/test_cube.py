@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gaffer_envmap.conventions import convert_convention, direction_grid, to_center_alignment
+from gaffer_envmap.convention_transforms import convert_convention, to_center_alignment
+from gaffer_envmap.conventions import direction_grid
 from gaffer_envmap.cube import FACE_ORDER, cube_face_directions, cube_to_latlong, latlong_to_cube
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import ConventionError, ShapeError

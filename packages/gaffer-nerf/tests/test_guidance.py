@@ -4,7 +4,7 @@ import pytest
 import torch
 
 import gaffer_nerf.guidance.perceptual as perceptual_mod
-from gaffer_diffusion import RelightPipeline, SamplingConfig
+from gaffer_diffusion import RelightPipeline, SamplingConfig, build_model
 from gaffer_diffusion.errors import MetricUnavailableError
 from gaffer_diffusion.testing import random_conditions, tiny_model
 from gaffer_nerf.configs import DiffusionSamplingConfig, Stage2Config
@@ -100,7 +100,7 @@ def test_residual_v_prediction_model_round_trips_and_gives_sds_gradients() -> No
         residual=True,
     )
     g = DiffusionGuide(
-        RelightPipeline(cfg.setup(seed=0)),
+        RelightPipeline(build_model(cfg, seed=0)),
         DiffusionSamplingConfig(num_inference_steps=4, batch_size=2),
     )
     cond = random_conditions(2, 32, seed=7)

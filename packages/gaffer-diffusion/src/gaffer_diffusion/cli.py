@@ -56,6 +56,7 @@ from gaffer_diffusion.loading import (
     load_pretrained,
     save_pretrained,
 )
+from gaffer_diffusion.models.build import build_model
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.preprocess import PrepareCompat, load_object_image
@@ -821,7 +822,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _init_random(args: argparse.Namespace) -> int:
-    model = get_preset(args.preset).setup(seed=args.seed)
+    model = build_model(get_preset(args.preset), seed=args.seed)
     save_pretrained(model, args.out)
     print(f"wrote a random-weight {args.preset} model to {args.out}")
     return 0

@@ -1,8 +1,8 @@
 """Typed, frozen configurations of the Neural Gaffer model and its presets.
 
 A `ModelConfig` describes every network of the model (UNet, VAE, CLIP image encoder, scheduler) with the
-numbers diffusers and transformers need to build them. `ModelConfig.setup()` builds random-initialised
-networks (no download); `gaffer_diffusion.loading` builds them from weights on disk.
+numbers diffusers and transformers need to build them. `gaffer_diffusion.build_model(config)` builds
+random-initialised networks (no download); `gaffer_diffusion.loading` builds them from weights on disk.
 
 Presets (`get_preset`):
 
@@ -22,13 +22,10 @@ Presets (`get_preset`):
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.hints import HINT_CHANNELS
-
-if TYPE_CHECKING:
-    from gaffer_diffusion.models.model import NeuralGafferModel
 
 PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny"]
 
@@ -344,19 +341,6 @@ class ModelConfig:
         unet = dataclasses.replace(self.unet, sample_size=resolution // max(factor, 1))
         vae = dataclasses.replace(self.vae, sample_size=resolution)
         return dataclasses.replace(self, resolution=resolution, unet=unet, vae=vae)
-
-    def setup(self, *, seed: int = 0) -> "NeuralGafferModel":
-        """Build random-initialised networks from this config (no download).
-
-        Args:
-            seed: torch seed for the random initialisation.
-
-        Returns:
-            A `gaffer_diffusion.models.NeuralGafferModel` in float32 on the CPU.
-        """
-        from gaffer_diffusion.models.build import build_model
-
-        return build_model(self, seed=seed)
 
 
 def _tiny() -> ModelConfig:

@@ -34,7 +34,7 @@ _EXPORTS: dict[str, str] = {
     "bundled_hdri": "bundled",
     "bundled_hdris": "bundled",
     "chirality": "conventions",
-    "convert_convention": "conventions",
+    "convert_convention": "convention_transforms",
     "cube_to_latlong": "cube",
     "describe": "stats",
     "direction_grid": "conventions",
@@ -64,7 +64,7 @@ _EXPORTS: dict[str, str] = {
     "sanitize": "sanitize",
     "sh_basis": "sh",
     "solid_angle": "conventions",
-    "to_center_alignment": "conventions",
+    "to_center_alignment": "convention_transforms",
     "total_power": "stats",
     "uv_to_direction": "conventions",
     "write_envmap": "io",
@@ -95,17 +95,16 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         yaw_roll,
     )
     from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
+    from gaffer_envmap.convention_transforms import convert_convention, to_center_alignment
     from gaffer_envmap.conventions import (
         CONVENTIONS,
         LatLongConvention,
         chirality,
-        convert_convention,
         direction_grid,
         direction_to_uv,
         get_convention,
         row_solid_angle,
         solid_angle,
-        to_center_alignment,
         uv_to_direction,
     )
     from gaffer_envmap.cube import cube_to_latlong, latlong_to_cube

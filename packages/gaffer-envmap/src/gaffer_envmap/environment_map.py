@@ -5,21 +5,13 @@ scene-referred linear Rec.709 RGB (what an EXR holds).
 """
 
 from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
+from gaffer_envmap.conventions import PixelAlignment, get_convention
 from gaffer_envmap.errors import ShapeError
 
-PixelAlignment = Literal["center", "corner"]
-"""Where pixel (i, j) sits on the sphere.
-
-- "center": pixel centres at ((j + 0.5)/We, (i + 0.5)/He); the whole sphere tiles into equal-angle cells
-  (Blender, three.js, skylibs, the Neural Gaffer world maps). Every gaffer computation uses this.
-- "corner": pixel centres at (j/(We-1), i/(He-1)); first/last column both on the seam and first/last row
-  on the poles (OpenEXR `envmap` attribute, Mitsuba rows, Filament). Convert with
-  `conventions.to_center_alignment` before any math.
-"""
+__all__ = ["EnvironmentMap", "PixelAlignment"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -49,8 +41,6 @@ class EnvironmentMap:
     metadata: dict[str, str] = field(default_factory=dict, compare=False)
 
     def __post_init__(self) -> None:
-        from gaffer_envmap.conventions import get_convention  # local: conventions imports types
-
         arr = np.asarray(self.radiance_linear)
         if arr.ndim != 3 or arr.shape[2] != 3:
             raise ShapeError(

@@ -14,10 +14,10 @@ from gaffer_data.dataset.authors import (
     read_authors_object,
 )
 from gaffer_data.dataset.manifest import check_schema, sha256_file
+from gaffer_data.dataset.poses import load_poses
 from gaffer_data.dataset.reader import (
     RenderDataset,
     iter_object_samples,
-    load_poses,
     open_dataset,
     read_object,
     verify_object,

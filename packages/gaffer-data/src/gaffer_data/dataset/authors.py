@@ -40,6 +40,7 @@ from typing import Any, Literal
 import numpy as np
 
 from gaffer_data.dataset.manifest import check_schema, read_json, sha256_file
+from gaffer_data.dataset.poses import load_poses
 from gaffer_data.dataset.schema import (
     CameraPoses,
     FailureRecord,
@@ -169,8 +170,6 @@ class AuthorsObject:
         Raises:
             IntegrityError: the file is missing or malformed.
         """
-        from gaffer_data.dataset.reader import load_poses  # local: reader imports schema
-
         return load_poses(self.root / "cameras.npz", len(self.views))
 
     def samples(self) -> Iterator[AuthorsSample]:

@@ -7,12 +7,9 @@ Example:
     ...     print(sample.image_exr, sample.envmap.name, sample.c2w_opencv.shape)
 """
 
-import zipfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-
-import numpy as np
 
 from gaffer_data.config import RenderConfig
 from gaffer_data.dataset.manifest import (
@@ -21,10 +18,12 @@ from gaffer_data.dataset.manifest import (
     read_json,
     sha256_file,
 )
+
+# `load_poses` lived here before issue 14; re-exported so that old imports keep working.
+from gaffer_data.dataset.poses import load_poses as load_poses
 from gaffer_data.dataset.schema import (
     DATASET_SCHEMA,
     DATASET_SCHEMA_VERSION,
-    CameraPoses,
     FailureRecord,
     RelightSample,
     RenderedObject,
@@ -35,36 +34,6 @@ MANIFEST_NAME = "manifest.json"
 """An object folder is complete iff this file exists (it is written atomically, last)."""
 DATASET_NAME = "dataset.json"
 OBJECTS_DIR = "objects"
-
-
-def load_poses(path: Path, num_views: int | None = None) -> CameraPoses:
-    """Load a `cameras.npz` payload.
-
-    Args:
-        path: the NPZ file.
-        num_views: expected V, or None to accept any.
-
-    Raises:
-        IntegrityError: missing file, missing key or wrong shapes.
-    """
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            w2c = np.array(npz["w2c_blender"], dtype=np.float64)
-            c2w = np.array(npz["c2w_opencv"], dtype=np.float64)
-            k = np.array(npz["intrinsics"], dtype=np.float64)
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
-        raise IntegrityError(
-            f"`{path}` is not a valid cameras NPZ ({exc!r}); re-render the object."
-        ) from exc
-    v = w2c.shape[0] if num_views is None else num_views
-    if w2c.shape != (v, 3, 4) or c2w.shape != (v, 4, 4) or k.shape != (3, 3):
-        raise IntegrityError(
-            f"`{path}` holds w2c_blender {w2c.shape}, c2w_opencv {c2w.shape}, intrinsics {k.shape}; "
-            f"expected ({v}, 3, 4), ({v}, 4, 4), (3, 3)."
-        )
-    for arr in (w2c, c2w, k):
-        arr.flags.writeable = False
-    return CameraPoses(w2c_blender=w2c, c2w_opencv=c2w, intrinsics=k)
 
 
 def read_object(folder: str | Path, *, verify: bool = False) -> RenderedObject:

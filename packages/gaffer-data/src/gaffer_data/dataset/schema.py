@@ -31,6 +31,7 @@ from typing import Literal
 import numpy as np
 
 from gaffer_data.config import RenderConfig
+from gaffer_data.dataset.poses import CameraPoses, load_poses
 
 OBJECT_SCHEMA = "gaffer.rendered_object"
 """Schema name of an object's `manifest.json`."""
@@ -222,21 +223,6 @@ class Normalization:
     center: tuple[float, float, float]
 
 
-@dataclass(frozen=True)
-class CameraPoses:
-    """Per-view camera matrices of an object (the `cameras.npz` payload).
-
-    Attributes:
-        w2c_blender: `[V, 3, 4]` float64 world-to-camera, Blender camera axes (x right, y up, -z forward).
-        c2w_opencv: `[V, 4, 4]` float64 camera-to-world, OpenCV camera axes (x right, y down, z forward).
-        intrinsics: `[3, 3]` float64 OpenCV K matrix, shared by all views.
-    """
-
-    w2c_blender: np.ndarray
-    c2w_opencv: np.ndarray
-    intrinsics: np.ndarray
-
-
 @dataclass(frozen=True, kw_only=True)
 class ObjectPlan:
     """Everything decided before rendering an object: sampled cameras, draws and output paths.
@@ -302,8 +288,6 @@ class RenderedObject:
         Raises:
             IntegrityError: when the file is missing or lacks a key or has the wrong shapes.
         """
-        from gaffer_data.dataset.reader import load_poses  # local: reader imports this module
-
         return load_poses(self.root / "cameras.npz", len(self.views))
 
 

@@ -70,8 +70,8 @@ class RelightPipeline:
 
     Example:
         >>> import torch
-        >>> from gaffer_diffusion import get_preset, LightingMaps, RelightingConditions, SamplingConfig
-        >>> pipe = RelightPipeline(get_preset("tiny").setup())
+        >>> from gaffer_diffusion import build_model, get_preset, LightingMaps, RelightingConditions, SamplingConfig
+        >>> pipe = RelightPipeline(build_model(get_preset("tiny")))
         >>> x = torch.rand(1, 3, 64, 64)
         >>> cond = RelightingConditions(image=x, lighting=LightingMaps(ldr=x, hdr=x))
         >>> out = pipe(cond, SamplingConfig(num_inference_steps=2), seeds=[0])

@@ -1,7 +1,8 @@
 """Training of the Neural Gaffer UNet on gaffer-data renders and converted authors' splits (extra
 `gaffer-diffusion[train]`).
 
-The only part of gaffer-diffusion that imports gaffer-data. Entry points: `load_config` + `train`, or the
+Reads gaffer-data renders through gaffer-data's public reader (`gaffer_data.dataset`), as `evaluation` and
+`demo` do; import-linter forbids its internals. Entry points: `load_config` + `train`, or the
 command line `gaffer-diffusion train --config CONFIG [--resume]`.
 """
 

@@ -44,7 +44,7 @@ from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
 from gaffer_diffusion.hints import hints_at
-from gaffer_diffusion.models.build import build_scheduler
+from gaffer_diffusion.models.build import build_model, build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training.config import ModelSource, TrainConfig
@@ -123,7 +123,7 @@ def build_training_model(source: ModelSource) -> NeuralGafferModel:
                         f"{cfg.vae.downsampling_factor}."
                     )
                 cfg = cfg.with_resolution(source.resolution)
-            return cfg.setup(seed=source.seed)
+            return build_model(cfg, seed=source.seed)
         case "zero123-xl":
             result = load_zero123_xl(str(source.path))
             logger.info("%s", result.report.summary())

@@ -34,6 +34,7 @@ import torch
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.loading import save_pretrained
 from gaffer_diffusion.metrics import psnr
+from gaffer_diffusion.models.build import build_model
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training.config import ValidationConfig, load_config
 from gaffer_diffusion.training.dataset import RelightTrainDataset, split_object_ids
@@ -152,7 +153,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     init = out / "init"
     vae_stats: dict[str, float] = {}
     if not (init / "gaffer_model.json").is_file():
-        model = preset.setup(seed=cfg.model.seed)
+        model = build_model(preset, seed=cfg.model.seed)
         if preset.vae.kind != "pixel":
             imgs = torch.stack(
                 [t for k in range(min(len(train_ds) * 4, 256)) for t in train_ds[k].target_images]
