@@ -27,12 +27,13 @@ from gaffer_diffusion._validate import check_image_batch, check_unit_range
 from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.errors import MissingDependencyError, ShapeError
 from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_envmap.compat_mode import Compat
 
 LatentMode = Literal["mode", "sample"]
 """How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""
 
-CompatMode = Literal["default", "neural-gaffer"]
-"""gaffer-envmap's lighting encoding: "neural-gaffer" reproduces the authors' maps bit for bit."""
+CompatMode = Compat
+"""gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -64,6 +64,7 @@ from gaffer_diffusion.metrics import (
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.report import LightingRow, ReportContent, render_html
+from gaffer_envmap.compat_mode import compat_problem
 
 logger = logging.getLogger(__name__)
 
@@ -154,10 +155,8 @@ class DemoConfig:
             guidance_scale=DEFAULT_GUIDANCE if self.guidance_scale is None else self.guidance_scale,
             average_samples=self.average_samples or 1,
         )
-        if self.compat not in (None, "neural-gaffer", "default"):
-            raise ConfigError(
-                f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'."
-            )
+        if self.compat is not None and (problem := compat_problem("compat", self.compat)):
+            raise ConfigError(problem)
         if self.object_fraction is not None and not 0.0 < self.object_fraction <= 1.0:
             raise ConfigError(
                 f"`object_fraction` is {self.object_fraction!r}; expected a fraction in (0, 1]."

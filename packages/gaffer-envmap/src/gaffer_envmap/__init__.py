@@ -12,7 +12,11 @@ from gaffer_envmap._version import __version__
 _EXPORTS: dict[str, str] = {
     "AugmentSpec": "augment",
     "C2WOpenCV": "poses",
+    "COMPAT_MODES": "compat_mode",
     "CONVENTIONS": "conventions",
+    "Compat": "compat_mode",
+    "compat_problem": "compat_mode",
+    "is_compat": "compat_mode",
     "ConventionError": "errors",
     "EnvironmentMap": "environment_map",
     "EnvmapReadError": "errors",
@@ -95,6 +99,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         yaw_roll,
     )
     from gaffer_envmap.bundled import bundled_hdri, bundled_hdris, read_bundled_hdri
+    from gaffer_envmap.compat_mode import COMPAT_MODES, Compat, compat_problem, is_compat
     from gaffer_envmap.convention_transforms import convert_convention, to_center_alignment
     from gaffer_envmap.conventions import (
         CONVENTIONS,
@@ -137,10 +142,12 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
 
 __all__ = [
+    "COMPAT_MODES",
     "CONVENTIONS",
     "IDENTITY_LAYOUT_W2C",
     "AugmentSpec",
     "C2WOpenCV",
+    "Compat",
     "ConventionError",
     "EnvironmentMap",
     "EnvmapReadError",
@@ -162,6 +169,7 @@ __all__ = [
     "bundled_hdri",
     "bundled_hdris",
     "chirality",
+    "compat_problem",
     "convert_convention",
     "cube_to_latlong",
     "describe",
@@ -174,6 +182,7 @@ __all__ = [
     "get_convention",
     "hdr_encode",
     "irradiance",
+    "is_compat",
     "latlong_to_cube",
     "ldr_encode",
     "look_at_w2c_blender",

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from gaffer_envmap.augment import augment_pool
+from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.encode import encode_lighting
 from gaffer_envmap.errors import GafferEnvmapError
 from gaffer_envmap.io import read_envmap, write_envmap, write_png
@@ -258,7 +259,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out-dir", required=True)
     sp.add_argument(
         "--compat",
-        choices=["default", "neural-gaffer"],
+        choices=COMPAT_MODES,
         default="default",
         help="neural-gaffer: bit-compatible with the released checkpoint",
     )

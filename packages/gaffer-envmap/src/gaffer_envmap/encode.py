@@ -16,7 +16,6 @@ Two modes:
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import torch
@@ -27,6 +26,7 @@ from gaffer_envmap.compat import (
     rotate_neural_gaffer,
     spin_matrices_neural_gaffer,
 )
+from gaffer_envmap.compat_mode import Compat, compat_problem
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError, ShapeError
 from gaffer_envmap.poses import W2CBlender
@@ -39,7 +39,6 @@ from gaffer_envmap.rotate import (
     source_height,
 )
 
-Compat = Literal["default", "neural-gaffer"]
 LDR_GAMMA = 2.2
 HDR_GAIN = 10.0
 HDR_MAX = float(torch.finfo(torch.float32).max) / (4 * HDR_GAIN)
@@ -171,8 +170,8 @@ def encode_lighting(
         ldr_u8, hdr_u8 = encode_neural_gaffer(rotated, size)
         to_t = lambda a: torch.from_numpy(a).to(src.device).permute(0, 3, 1, 2).float() / 255  # noqa: E731
         return LightingEncoding(ldr=to_t(ldr_u8), hdr=to_t(hdr_u8), compat=compat)
-    if compat != "default":
-        raise GafferEnvmapError(f"`compat` must be 'default' or 'neural-gaffer', got {compat!r}.")
+    if (problem := compat_problem("compat", compat)) is not None:
+        raise GafferEnvmapError(problem)
     if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
         src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
     if filter == "conservative" and src.device.type == "cpu" and src.dtype == torch.float32:

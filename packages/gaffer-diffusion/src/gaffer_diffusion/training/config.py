@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 from gaffer_diffusion.configs import PRESETS, PresetName
 from gaffer_diffusion.errors import ConfigError
+from gaffer_envmap.compat_mode import Compat, compat_problem
 
 ModelInit = Literal["preset", "zero123-xl", "pretrained"]
 """Where the networks come from: a random-init preset (tiny tests), a local Zero-1-to-3 XL folder (with
@@ -41,7 +42,7 @@ the 8 -> 16 `conv_in` surgery; the paper's initialisation) or a model folder in 
 MixedPrecision = Literal["no", "fp16", "bf16"]
 """accelerate's mixed-precision modes (fp32 master weights of the UNet in every mode)."""
 
-LightingCompat = Literal["default", "neural-gaffer"]
+LightingCompat = Compat
 """gaffer-envmap's encoding: "default" for new training, "neural-gaffer" to fine-tune the release."""
 
 LatentMode = Literal["mode", "sample"]
@@ -152,11 +153,8 @@ class DataConfig:
             raise ConfigError(f"`data.envmap_height` is {self.envmap_height}; need >= 2.")
         if not (math.isfinite(self.max_radiance) and self.max_radiance > 0):
             raise ConfigError(f"`data.max_radiance` is {self.max_radiance}; need finite > 0.")
-        if self.lighting_compat not in ("default", "neural-gaffer"):
-            raise ConfigError(
-                f"`data.lighting_compat` is {self.lighting_compat!r}; expected 'default' or "
-                "'neural-gaffer'."
-            )
+        if (problem := compat_problem("data.lighting_compat", self.lighting_compat)) is not None:
+            raise ConfigError(problem)
         if self.val_objects < 0 or self.num_workers < 0 or self.max_load_retries < 0:
             raise ConfigError(
                 "`data.val_objects`, `data.num_workers` and `data.max_load_retries` must be >= 0."
