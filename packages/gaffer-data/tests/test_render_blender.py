@@ -176,6 +176,76 @@ def test_same_seed_gives_identical_images(rendered, inputs, tmp_path: Path) -> N
                 np.testing.assert_array_equal(ca[key], cb[key])
 
 
+def _object_bytes(folder: Path) -> dict[str, bytes]:
+    """Every file of an object's folder but its manifest (whose `created_utc` is the write time)."""
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and p.name != "manifest.json"
+    }
+
+
+def _assert_same_bytes(a: Path, b: Path) -> None:
+    bytes_a, bytes_b = _object_bytes(a), _object_bytes(b)
+    assert sorted(bytes_a) == sorted(bytes_b)
+    differ = [name for name in bytes_a if bytes_a[name] != bytes_b[name]]
+    assert differ == [], f"files whose bytes differ between {a} and {b}"
+    records_a = [(f.path, f.sha256) for f in read_object(a).files]
+    assert records_a == [(f.path, f.sha256) for f in read_object(b).files]
+
+
+def _render_sphere(inputs: tuple[Path, Path], out: Path) -> None:
+    objects, envmaps = inputs
+    render_dataset(
+        [("sphere", objects / "sphere.obj")],
+        scan_envmaps(envmaps),
+        out,
+        tiny_config(lightings=3),
+        RunOptions(progress=False),
+    )
+
+
+def test_a_second_clean_run_writes_the_same_bytes(rendered, inputs, tmp_path: Path) -> None:
+    out, _ = rendered
+    _render_sphere(inputs, tmp_path)
+    _assert_same_bytes(out / "objects" / "sphere", tmp_path / "objects" / "sphere")
+    obj = read_object(tmp_path / "objects" / "sphere")
+    lit = obj.views[0].lit[0]
+    import OpenEXR
+    from PIL import Image
+
+    with OpenEXR.File(str(obj.path(lit.exr))) as f:
+        header = set(f.header())
+    with Image.open(obj.path(lit.png)) as im:
+        text = set(im.info)
+    for key in header | text:
+        assert key not in ("Date", "Time", "RenderTime", "File", "Frame") and not key.endswith(
+            "_time"
+        ), key
+
+
+def test_an_interrupted_then_resumed_object_equals_a_clean_one(
+    rendered, inputs, tmp_path: Path
+) -> None:
+    out, _ = rendered
+    _render_sphere(inputs, tmp_path)
+    root = tmp_path / "objects" / "sphere"
+    obj = read_object(root)
+    # What a kill mid-object leaves: no manifest, some images done, the rest missing, and a stale
+    # temporary of the write that was under way.
+    (root / "manifest.json").unlink()
+    for lit in obj.views[1].lit[1:]:
+        (root / lit.exr).unlink()
+        (root / lit.png).unlink()
+    area = obj.views[1].area
+    assert area is not None and obj.views[1].alpha is not None
+    for name in (area.png, area.normal, obj.views[1].alpha):
+        (root / name).unlink()
+    (root / "lit" / ".001_002.abcd1234.tmp.exr").write_bytes(b"partial")
+    _render_sphere(inputs, tmp_path)
+    _assert_same_bytes(out / "objects" / "sphere", root)
+
+
 def test_rerun_skips_complete_objects_and_refuses_other_configs(rendered, inputs) -> None:
     out, _ = rendered
     objects, envmaps = inputs

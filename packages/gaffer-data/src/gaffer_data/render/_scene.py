@@ -130,6 +130,39 @@ def configure_cycles(scene: bpy.types.Scene, config: RenderConfig, threads: int)
     scene.view_settings.exposure = 0.0
     scene.view_settings.gamma = 1.0
     scene.display_settings.display_device = "sRGB"
+    disable_stamps(scene)
+
+
+# Blender's metadata stamps (`RenderSettings.use_stamp_*`): each one also writes a field into the
+# EXR/PNG header of every saved render, even with burn-in (`use_stamp`) off.
+_STAMP_FLAGS = (
+    "use_stamp",
+    "use_stamp_date",
+    "use_stamp_time",
+    "use_stamp_render_time",
+    "use_stamp_frame",
+    "use_stamp_frame_range",
+    "use_stamp_memory",
+    "use_stamp_hostname",
+    "use_stamp_camera",
+    "use_stamp_lens",
+    "use_stamp_scene",
+    "use_stamp_marker",
+    "use_stamp_filename",
+    "use_stamp_sequencer_strip",
+    "use_stamp_note",
+)
+
+
+def disable_stamps(scene: bpy.types.Scene) -> None:
+    """Turn every metadata stamp off, so saved images carry no date, render time, frame or file name.
+
+    Byte-reproducible renders need it: the date and render-time fields differ from run to run. Cycles'
+    own timing statistics have no switch; `gaffer_data.render._metadata` strips them after saving.
+    """
+    for flag in _STAMP_FLAGS:
+        if hasattr(scene.render, flag):
+            setattr(scene.render, flag, False)
 
 
 def add_camera(scene: bpy.types.Scene, config: RenderConfig) -> bpy.types.Object:

@@ -26,6 +26,7 @@ from gaffer_data._atomic import atomic_write, atomic_write_json
 from gaffer_data.dataset.manifest import plan_from_json, read_json
 from gaffer_data.dataset.schema import EnvmapRef, ObjectPlan, ViewRecord
 from gaffer_data.errors import GafferDataError, InputError
+from gaffer_data.render._metadata import strip_volatile_metadata
 from gaffer_data.render.plan import look_at_c2w_blender
 from gaffer_envmap.augment import AugmentSpec
 from gaffer_envmap.environment_map import EnvironmentMap
@@ -115,7 +116,11 @@ class _EnvmapCache:
 
 
 def _save_render(scene: Any, path: Path, fmt: str) -> None:
-    """Save the current Render Result as float32 RGBA EXR or 8-bit RGBA PNG, atomically."""
+    """Save the current Render Result as float32 RGBA EXR or 8-bit RGBA PNG, atomically.
+
+    The file holds no date or timing metadata (stamps are off, Cycles' timings are stripped), so the
+    same plan always gives the same bytes.
+    """
     import bpy
 
     settings = scene.render.image_settings
@@ -130,7 +135,14 @@ def _save_render(scene: Any, path: Path, fmt: str) -> None:
         settings.compression = 15
     settings.color_mode = "RGBA"
     result = bpy.data.images["Render Result"]
-    atomic_write(path, lambda tmp: result.save_render(str(tmp), scene=scene))
+
+    def write(tmp: Path) -> None:
+        result.save_render(str(tmp), scene=scene)
+        strip_volatile_metadata(
+            tmp
+        )  # Cycles' per-render timings: the bytes must not depend on them
+
+    atomic_write(path, write)
 
 
 def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
