@@ -32,6 +32,22 @@ def test_info_json(scene: tuple[Path, Path], capsys: pytest.CaptureFixture[str])
     assert info["dominant_direction"][1] > 0.8
 
 
+def test_info_reports_the_stored_minimum_of_a_map_with_negatives(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # issue 17: `info` said min_value 0.0 for a map with 826 negative pixels
+    from gaffer_envmap import write_envmap
+
+    x = np.ones((8, 16, 3), np.float32)
+    x[1, 2, 0] = -0.003
+    x[3, 4, 1] = -0.5
+    write_envmap(tmp_path / "neg.exr", x, dtype="float32")
+    assert main(["info", str(tmp_path / "neg.exr"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["negative_count"] == 2
+    assert info["min_value"] == pytest.approx(-0.5)
+
+
 def test_rotate_writes_float32_exr(scene: tuple[Path, Path], tmp_path: Path) -> None:
     src, w2c = scene
     dst = tmp_path / "cam.exr"

@@ -1,5 +1,7 @@
 """`gaffer_envmap.sanitize`: counts per value and the three policies."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -92,3 +94,49 @@ def test_preserves_half_dtype() -> None:
 def test_unknown_policy() -> None:
     with pytest.raises(ValueError, match="`policy`"):
         sanitize(np.ones(3), "inpaint")  # type: ignore[arg-type]
+
+
+def test_raise_sets_tiny_compression_negatives_to_zero_with_an_info_line(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # issue 17: lossy EXR compression leaves a few negatives far below the map's scale
+    x = np.ones((8, 16, 3), np.float32)
+    x[2, 3, 1] = -1e-3
+    x[5, 7, 0] = -4e-2
+    with caplog.at_level(logging.INFO, logger="gaffer_envmap.sanitize"):
+        out, report = sanitize(x, "raise", name="sky.exr")
+    assert report.tiny_negatives_clamped and report.num_negative == 2
+    assert out.min() == 0.0 and out[2, 3, 1] == 0.0 and out[0, 0, 0] == 1.0
+    assert x[2, 3, 1] == np.float32(-1e-3)  # the input is not modified
+    assert "sky.exr" in caplog.text and "tiny negative" in caplog.text
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda x: x.__setitem__((0, 0, 0), -0.1),  # 10 % of the mean: a real error
+        lambda x: x.__setitem__((slice(0, 2),), -1e-4),  # a quarter of the values negative
+        lambda x: x.__setitem__((0, 0, 0), np.nan),
+    ],
+    ids=["large", "many", "nan"],
+)
+def test_raise_still_refuses_substantial_negatives_and_nan(make) -> None:
+    x = np.ones((8, 16, 3), np.float32)
+    make(x)
+    with pytest.raises(NonFiniteError):
+        sanitize(x, "raise")
+
+
+def test_strict_refuses_even_tiny_negatives() -> None:
+    x = np.ones((8, 16, 3), np.float32)
+    x[2, 3, 1] = -1e-6
+    with pytest.raises(NonFiniteError, match="1 negative"):
+        sanitize(x, "strict")
+
+
+def test_every_bundled_hdri_reads_with_the_default_policy() -> None:
+    from gaffer_envmap import bundled_hdris, read_envmap
+
+    for name, path in bundled_hdris().items():
+        env = read_envmap(path)
+        assert env.radiance_linear.min() >= 0.0, name

@@ -211,9 +211,11 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument(name, help="environment map (.exr, .hdr, .png/.jpg), Blender convention")
         sp.add_argument(
             "--sanitize",
-            choices=["raise", "zero", "clamp"],
+            choices=["raise", "strict", "zero", "clamp"],
             default="raise",
-            help="what to do with NaN/Inf/negative pixels (default: refuse the map)",
+            help="NaN/Inf/negative pixels: 'raise' (default) sets tiny negatives from lossy "
+            "compression to 0 with an INFO line and refuses anything else; 'strict' refuses any; "
+            "'zero' sets all to 0; 'clamp' also keeps +Inf as the brightest finite value",
         )
 
     sp = sub.add_parser(

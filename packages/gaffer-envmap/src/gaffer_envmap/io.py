@@ -138,8 +138,9 @@ def read_envmap(
 
     Args:
         path: `.exr`, `.hdr`, `.png`, `.jpg` or `.jpeg` file, 2:1 lat-long.
-        sanitize: what to do with NaN, ±Inf and negative values: "raise" (default), "zero" or
-            "clamp" (see `gaffer_envmap.sanitize.SanitizePolicy`).
+        sanitize: what to do with NaN, ±Inf and negative values: "raise" (default: tiny negatives
+            from lossy compression become 0 with an INFO line, anything else raises), "strict"
+            (raise on any), "zero" or "clamp" (see `gaffer_envmap.sanitize.SanitizePolicy`).
         convention: the lat-long convention the file uses (`gaffer_envmap.conventions`); files do
             not record it. Maps carrying OpenEXR's `envmap=latlong` attribute are in "openexr",
             corner-aligned (pass `convention="openexr", alignment="corner"`).
@@ -156,7 +157,8 @@ def read_envmap(
         EnvmapReadError: missing file, unsupported suffix, damaged/unsupported file, or no
             usable colour channels.
         ShapeError: the image is not 2:1 (the message says what to do, e.g. for cube maps).
-        NonFiniteError: NaN/Inf/negative values with `sanitize="raise"`.
+        NonFiniteError: NaN/Inf or substantial negative values with `sanitize="raise"`, any of
+            them with "strict".
         ConventionError: unknown `convention`.
         MissingDependencyError: `.hdr` without OpenImageIO.
 
@@ -176,7 +178,9 @@ def read_envmap(
         meta["encoding"] = encoding
     _check_latlong(rgb, path, meta)
     rgb, report = _sanitize(rgb, sanitize, name=str(path))
-    if not report.clean:
+    if report.tiny_negatives_clamped:
+        meta["sanitize"] = f"tiny negatives set to 0: {report.describe()}"
+    elif not report.clean:
         meta["sanitize"] = f"{report.policy}: {report.describe()}"
     if meta.get("envmap") == "latlong" and convention != "openexr":
         logger.info(

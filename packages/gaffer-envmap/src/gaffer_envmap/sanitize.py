@@ -5,6 +5,7 @@ normalisation into zeros, so maps are checked once, on load (the policy is an ar
 `gaffer_envmap.io.read_envmap`). Counts are per value (per channel), not per pixel.
 """
 
+import dataclasses
 import logging
 from dataclasses import dataclass
 from typing import Literal, assert_never
@@ -13,20 +14,39 @@ import numpy as np
 
 from gaffer_envmap.errors import NonFiniteError
 
-__all__ = ["SanitizePolicy", "SanitizeReport", "sanitize"]
+__all__ = [
+    "TINY_NEGATIVE_FRACTION",
+    "TINY_NEGATIVE_RELATIVE",
+    "SanitizePolicy",
+    "SanitizeReport",
+    "sanitize",
+]
 
 logger = logging.getLogger(__name__)
 
-SanitizePolicy = Literal["raise", "zero", "clamp"]
+SanitizePolicy = Literal["raise", "strict", "zero", "clamp"]
 """What `sanitize` does with NaN, +Inf, -Inf and negative values.
 
-- "raise": raise `NonFiniteError` naming the counts (nothing is changed).
+- "raise" (the default everywhere): tiny negatives, the noise of lossy EXR compression (DWAB/PIZ
+  ringing round dark pixels; 7 of the 8 bundled HDRIs hold some), are set to 0 with an INFO line;
+  anything else (NaN, ±Inf, a substantial negative) raises `NonFiniteError` naming the counts.
+  "Tiny": every negative has |v| <= `TINY_NEGATIVE_RELATIVE` x the map's mean |radiance| and they are
+  at most `TINY_NEGATIVE_FRACTION` of its values.
+- "strict": raise `NonFiniteError` on any NaN, ±Inf or negative value (nothing is changed).
 - "zero": NaN, ±Inf and negatives become 0.
 - "clamp": NaN, -Inf and negatives become 0; +Inf becomes the largest finite value in the map
   (0 when there is none), which keeps a clipped sun bright instead of deleting it.
 """
 
-_POLICIES = ("raise", "zero", "clamp")
+_POLICIES = ("raise", "strict", "zero", "clamp")
+
+TINY_NEGATIVE_RELATIVE = 0.05
+"""Largest |negative| that counts as compression noise, relative to the map's mean |radiance|. The
+bundled maps' worst is 0.0145 (night: -0.0017 against a mean of 0.116); a real sign error or a
+subtracted map is of the order of the mean itself (issue 17)."""
+
+TINY_NEGATIVE_FRACTION = 0.01
+"""At most this fraction of the values may be tiny negatives (the bundled maps: <= 0.06 %)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -48,6 +68,7 @@ class SanitizeReport:
     num_negative: int
     policy: SanitizePolicy
     posinf_replacement: float | None = None
+    tiny_negatives_clamped: bool = False
 
     @property
     def num_bad(self) -> int:
@@ -81,7 +102,7 @@ def sanitize(
 
     Args:
         radiance: `[..., C]` (any shape) float array, typically `[He, We, 3]` linear radiance.
-        policy: "raise", "zero" or "clamp" (see `SanitizePolicy`).
+        policy: "raise", "strict", "zero" or "clamp" (see `SanitizePolicy`).
         name: how to call the array in error messages (e.g. a file path).
 
     Returns:
@@ -89,7 +110,8 @@ def sanitize(
         was replaced, otherwise `radiance` itself); `report` holds the counts.
 
     Raises:
-        NonFiniteError: under "raise" when any NaN, ±Inf or negative value is present.
+        NonFiniteError: under "strict" when any NaN, ±Inf or negative value is present; under
+            "raise" the same, except tiny negatives (see `SanitizePolicy`), which become 0.
         ValueError: when `policy` is unknown.
 
     Example:
@@ -112,16 +134,29 @@ def sanitize(
         neginf = np.isneginf(arr)
         negative = arr < 0  # NaN compares False; -Inf is counted as -Inf only
         negative &= ~neginf
-    counts = {
-        "num_nan": int(nan.sum()),
-        "num_posinf": int(posinf.sum()),
-        "num_neginf": int(neginf.sum()),
-        "num_negative": int(negative.sum()),
-    }
-    if sum(counts.values()) == 0:
-        return arr, SanitizeReport(**counts, policy=policy)
-    if policy == "raise":
-        report = SanitizeReport(**counts, policy=policy)
+    found = SanitizeReport(
+        num_nan=int(nan.sum()),
+        num_posinf=int(posinf.sum()),
+        num_neginf=int(neginf.sum()),
+        num_negative=int(negative.sum()),
+        policy=policy,
+    )
+    if found.clean:
+        return arr, found
+    if policy == "raise" and _only_tiny_negatives(arr, found):
+        out = arr.copy()
+        out[negative] = 0
+        report = dataclasses.replace(found, tiny_negatives_clamped=True)
+        logger.info(
+            "%s: %d tiny negative value(s) (lossy compression noise, down to %.3g) set to 0; "
+            "pass sanitize='strict' to refuse them instead",
+            name,
+            found.num_negative,
+            float(arr[negative].min()),
+        )
+        return out, report
+    if policy in ("raise", "strict"):
+        report = found
         raise NonFiniteError(
             f'`{name}` holds {report.describe()} value(s). Pass `sanitize="zero"` (set them to 0) '
             'or `sanitize="clamp"` (+Inf -> largest finite value, the rest -> 0), '
@@ -138,6 +173,18 @@ def sanitize(
     out = arr.copy()
     out[nan | neginf | negative] = 0
     out[posinf] = replacement
-    report = SanitizeReport(**counts, policy=policy, posinf_replacement=replacement)
+    report = dataclasses.replace(found, posinf_replacement=replacement)
     logger.info("sanitized %s with policy %r: %s", name, policy, report.describe())
     return out, report
+
+
+def _only_tiny_negatives(arr: np.ndarray, found: SanitizeReport) -> bool:
+    """True when the only problem is a few negatives far below the map's scale (compression noise)."""
+    if found.num_nan or found.num_posinf or found.num_neginf or not found.num_negative:
+        return False
+    if not np.issubdtype(arr.dtype, np.floating):
+        return False
+    if found.num_negative > TINY_NEGATIVE_FRACTION * arr.size:
+        return False
+    scale = float(np.abs(arr, dtype=np.float64).mean())
+    return scale > 0 and float(-arr.min()) <= TINY_NEGATIVE_RELATIVE * scale

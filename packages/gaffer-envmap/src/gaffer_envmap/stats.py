@@ -57,13 +57,16 @@ def describe(env: EnvironmentMap, raw: np.ndarray | None = None) -> EnvmapInfo:
     i, j = np.unravel_index(int(np.argmax(y)), y.shape)
     dirs = direction_grid(env.height, env.width, env.convention, env.alignment)
     clean = env.with_radiance(finite)
+    raw_finite = np.asarray(arr)[np.isfinite(arr)]
     return EnvmapInfo(
         height=env.height,
         width=env.width,
         convention=env.convention,
         up_axis=tuple(float(x) for x in get_convention(env.convention).up),  # type: ignore[arg-type]
-        min_value=float(finite.min()),
-        max_value=float(finite.max()),
+        # the range of the finite values as stored (issue 17: `info` said 0.0 for a map whose
+        # negatives had been zeroed on read)
+        min_value=float(raw_finite.min()) if raw_finite.size else 0.0,
+        max_value=float(raw_finite.max()) if raw_finite.size else 0.0,
         mean_value=float(finite.mean()),
         nan_count=int(np.isnan(arr).sum()),
         inf_count=int(np.isinf(arr).sum()),
