@@ -1,19 +1,38 @@
-"""Public test helpers: tiny objects, tiny environment maps and a tiny render config.
+"""Public test helpers: tiny objects, tiny environment maps, a tiny render config, and fake datasets.
 
 Used by gaffer-data's own tests and by sibling packages and e2e tests (importable under
 `--import-mode=importlib`). Nothing here imports bpy.
+
+`write_fake_object` and `write_fake_dataset_json` are the one writer of gaffer-data's on-disk format
+without Blender: a caller brings the pixels, the poses and the plan, they write the object folder
+(PNGs, `cameras.npz`, `manifest.json`) and the dataset's `dataset.json` through gaffer-data's own
+serialisers, so `gaffer_data.open_dataset` reads the result like a real render. Sibling packages' fake
+datasets (`gaffer_diffusion.testing.write_tiny_render_dataset`,
+`gaffer_diffusion.training.testing.write_synthetic_dataset`) call them.
 """
 
+import dataclasses
+import json
 import math
 import os
 import signal
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from gaffer_data.config import AugmentConfig, RenderConfig
+from gaffer_data.dataset.manifest import object_manifest_json, producer, sha256_file, utc_now
+from gaffer_data.dataset.schema import (
+    DATASET_SCHEMA,
+    DATASET_SCHEMA_VERSION,
+    FailureRecord,
+    FileRecord,
+    Normalization,
+    ObjectPlan,
+)
 
 
 def tiny_config(**overrides: object) -> RenderConfig:
@@ -129,4 +148,126 @@ def write_mirror_sphere_obj(path: Path, rings: int = 64, segments: int = 128) ->
     )
     body = path.read_text(encoding="utf-8")
     path.write_text(f"mtllib {mtl.name}\nusemtl mirror\n{body}", encoding="utf-8")
+    return path
+
+
+def fake_file_record(folder: Path, path: str) -> FileRecord:
+    """The manifest record of a fake dataset's payload `folder/path`, with its sha256.
+
+    The kind is read from the name: `cameras.npz` -> "cameras" (`npz`, data), `alpha/...` -> "alpha"
+    (`uint8`, data), `area/...` -> "area_png" and anything else -> "lit_png" (`uint8`, srgb). The shape
+    is left empty `()`: fake payloads are not checked against the render resolution.
+    """
+    if path.endswith(".npz"):
+        kind, dtype, space = "cameras", "npz", "data"
+    elif "alpha" in path:
+        kind, dtype, space = "alpha", "uint8", "data"
+    elif path.startswith("area/"):
+        kind, dtype, space = "area_png", "uint8", "srgb"
+    else:
+        kind, dtype, space = "lit_png", "uint8", "srgb"
+    return FileRecord(
+        path=path,
+        sha256=sha256_file(folder / path),
+        kind=kind,  # type: ignore[arg-type]
+        dtype=dtype,
+        shape=(),
+        color_space=space,  # type: ignore[arg-type]
+    )
+
+
+def write_fake_object(
+    folder: Path,
+    plan: ObjectPlan,
+    *,
+    pngs: Mapping[str, np.ndarray],
+    w2c_blender: np.ndarray,
+    c2w_opencv: np.ndarray,
+    intrinsics: np.ndarray,
+    record_files: bool = True,
+    source_sha256: str = "0" * 64,
+    normalization: Normalization | None = None,
+) -> Path:
+    """Write one object's folder in gaffer-data's layout without Blender; returns its manifest path.
+
+    Writes each PNG (`PIL.Image.fromarray` of the array, default settings), then `cameras.npz`
+    (`w2c_blender`, `c2w_opencv`, `intrinsics`), then `manifest.json` (compact JSON from
+    `gaffer_data.dataset.manifest.object_manifest_json`). Not atomic: tests only.
+
+    Args:
+        folder: the object's folder, `DATASET/objects/<plan.object_id>` (created).
+        plan: the object's plan; its views name the payloads (paths relative to `folder`). Payloads
+            the plan names but `pngs` lacks (e.g. the EXRs) are simply not written.
+        pngs: `{relative path: uint8 [H, W] (L), [H, W, 3] (RGB) or [H, W, 4] (RGBA)}`, written in
+            this order.
+        w2c_blender: `[V, 3, 4]` world-to-camera matrices (Blender camera axes).
+        c2w_opencv: `[V, 4, 4]` camera-to-world matrices (OpenCV camera axes).
+        intrinsics: `[3, 3]` pinhole matrix.
+        record_files: list every file written (sorted, with `fake_file_record`) in the manifest's
+            `files`, so `verify_object` checks them; False leaves `files` empty.
+        source_sha256: the manifest's digest of the (absent) source mesh.
+        normalization: the manifest's normalisation (default: scale 1, centre at the origin).
+
+    Returns:
+        `folder/manifest.json`.
+    """
+    from PIL import Image
+
+    folder = Path(folder)
+    for rel, pixels in pngs.items():
+        path = folder / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        Image.fromarray(np.asarray(pixels, dtype=np.uint8)).save(path)
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / "cameras.npz", "wb") as fh:
+        np.savez(fh, w2c_blender=w2c_blender, c2w_opencv=c2w_opencv, intrinsics=intrinsics)
+    files: list[FileRecord] = []
+    if record_files:
+        names = sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.is_file())
+        files = [fake_file_record(folder, rel) for rel in names if rel != "manifest.json"]
+    body = object_manifest_json(
+        plan,
+        source_sha256=source_sha256,
+        normalization=normalization or Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
+        files=files,
+    )
+    manifest = folder / "manifest.json"
+    manifest.write_text(json.dumps(body), encoding="utf-8")
+    return manifest
+
+
+def write_fake_dataset_json(
+    root: Path,
+    config: RenderConfig,
+    object_ids: Sequence[str],
+    failures: Sequence[FailureRecord] = (),
+) -> Path:
+    """Write a dataset's `dataset.json` (`gaffer.render_dataset`) as `gaffer-data render` does.
+
+    Args:
+        root: the dataset folder (created).
+        config: the render config every object was "rendered" with.
+        object_ids: the complete objects, in the order to list them.
+        failures: failed objects to record.
+
+    Returns:
+        `root/dataset.json` (compact JSON; not atomic: tests only).
+    """
+    root = Path(root)
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / "dataset.json"
+    path.write_text(
+        json.dumps(
+            {
+                "schema": DATASET_SCHEMA,
+                "schema_version": DATASET_SCHEMA_VERSION,
+                "producer": dataclasses.asdict(producer()),
+                "created_utc": utc_now(),
+                "config": config.to_dict(),
+                "objects": list(object_ids),
+                "failures": [dataclasses.asdict(f) for f in failures],
+            }
+        ),
+        encoding="utf-8",
+    )
     return path

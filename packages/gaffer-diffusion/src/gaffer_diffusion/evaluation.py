@@ -104,7 +104,8 @@ class EncodedLightingFiles:
 
 DatasetKind = Literal["render", "authors"]
 """A gaffer-data render (`gaffer.render_dataset`) or a converted authors' layout
-(`gaffer.authors_dataset`)."""
+(`gaffer.authors_dataset`); the same Literal as `gaffer_data.dataset.DatasetKind`, repeated here so
+that importing this module does not need gaffer-data."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -337,17 +338,14 @@ def dataset_pairs(
 
 
 def dataset_kind(root: str | Path) -> DatasetKind:
-    """ "authors" when `root/dataset.json` declares a converted authors' layout, else "render"."""
-    path = Path(root) / "dataset.json"
-    if not path.is_file():
-        return "render"
-    try:
-        schema = json.loads(path.read_text(encoding="utf-8")).get("schema")
-    except (OSError, ValueError, AttributeError):
-        return "render"  # the reader reports the malformed file with its own message
-    from gaffer_data.dataset import AUTHORS_DATASET_SCHEMA
+    """ "authors" when `root/dataset.json` declares a converted authors' layout, else "render".
 
-    return "authors" if schema == AUTHORS_DATASET_SCHEMA else "render"
+    Re-exported for compatibility: the test belongs to gaffer-data's format and lives in
+    `gaffer_data.dataset.dataset_kind` (gaffer-data is imported here, not at module import).
+    """
+    from gaffer_data.dataset import dataset_kind as _kind
+
+    return _kind(root)
 
 
 def _missing_input(

@@ -13,6 +13,7 @@ from gaffer_data.dataset.authors import (
     open_authors_dataset,
     read_authors_object,
 )
+from gaffer_data.dataset.kind import DatasetKind, dataset_kind
 from gaffer_data.dataset.manifest import check_schema, sha256_file
 from gaffer_data.dataset.poses import load_poses
 from gaffer_data.dataset.reader import (
@@ -63,6 +64,7 @@ __all__ = [
     "AuthorsView",
     "CameraPoses",
     "CameraSample",
+    "DatasetKind",
     "EnvmapRef",
     "FailureRecord",
     "FileRecord",
@@ -77,6 +79,7 @@ __all__ = [
     "Split",
     "ViewRecord",
     "check_schema",
+    "dataset_kind",
     "iter_object_samples",
     "load_poses",
     "open_authors_dataset",

@@ -34,7 +34,7 @@ from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
@@ -48,8 +48,10 @@ from gaffer_data.dataset import (
     EnvmapRef,
     RenderedObject,
     ViewRecord,
+    dataset_kind,
     read_authors_object,
 )
+from gaffer_data.dataset import DatasetKind as DatasetKind  # re-exported: it moved to gaffer-data
 from gaffer_diffusion.preprocess import load_rgba_on_white, object_square, read_alpha
 from gaffer_diffusion.training.config import DataConfig, LightingCompat
 from gaffer_diffusion.training.errors import DataError
@@ -328,21 +330,6 @@ class _EnvmapCache:
         if len(self._items) > self.capacity:
             self._items.popitem(last=False)
         return rad
-
-
-DatasetKind = Literal["render", "authors"]
-"""A gaffer-data render folder or a converted authors' split (`gaffer_diffusion.evaluation`'s kinds)."""
-
-
-def dataset_kind(root: str | Path) -> DatasetKind:
-    """ "authors" for a folder written by `gaffer-data convert-authors`, else "render".
-
-    The same test as evaluation's (`gaffer_diffusion.evaluation.dataset_kind`): the schema in
-    `root/dataset.json`.
-    """
-    from gaffer_diffusion.evaluation import dataset_kind as _kind
-
-    return _kind(root)
 
 
 def dataset_object_ids(root: str | Path) -> tuple[str, ...]:

@@ -5,12 +5,11 @@ convert-authors`).
 
 Each object is a flat disc of one albedo; its image under an environment map is the disc shaded by the
 map's mean colour (a crude but learnable "relighting"), composited with a straight alpha on a
-transparent film. Manifests are written with gaffer-data's public schema and serialiser, so
-`gaffer_data.open_dataset` reads them like real renders.
+transparent film. The folders are written by gaffer-data's own fake-dataset writer
+(`gaffer_data.testing.write_fake_object`, `write_fake_dataset_json`), so `gaffer_data.open_dataset`
+reads them like real renders.
 """
 
-import dataclasses
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,19 +18,16 @@ from PIL import Image
 
 from gaffer_data import RenderConfig
 from gaffer_data.dataset import (
-    DATASET_SCHEMA,
-    DATASET_SCHEMA_VERSION,
     AreaLightImage,
     AreaLightSample,
     CameraSample,
     EnvmapRef,
     Intrinsics,
     LitImage,
-    Normalization,
     ObjectPlan,
     ViewRecord,
 )
-from gaffer_data.dataset.manifest import object_manifest_json, producer, utc_now
+from gaffer_data.testing import write_fake_dataset_json, write_fake_object
 
 if TYPE_CHECKING:
     from gaffer_diffusion.training.config import TrainConfig
@@ -69,7 +65,11 @@ def _disc_rgba(size: int, albedo: np.ndarray, light: np.ndarray) -> np.ndarray:
 
 def _save_png(path: Path, rgba: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray((np.clip(rgba, 0, 1) * 255).round().astype(np.uint8), "RGBA").save(path)
+    Image.fromarray(_to_uint8(rgba), "RGBA").save(path)
+
+
+def _to_uint8(rgba: np.ndarray) -> np.ndarray:
+    return (np.clip(rgba, 0, 1) * 255).round().astype(np.uint8)
 
 
 def write_synthetic_dataset(
@@ -118,6 +118,7 @@ def write_synthetic_dataset(
         ids.append(oid)
         folder = root / "objects" / oid
         albedo = rng.uniform(0.2, 0.9, size=3)
+        pngs: dict[str, np.ndarray] = {}
         view_records = []
         w2cs, c2ws = [], []
         for v in range(views):
@@ -129,7 +130,7 @@ def write_synthetic_dataset(
             for li in range(lightings):
                 k = int(rng.integers(len(pool)))
                 rel = f"lit/{v:03d}_{li:03d}"
-                _save_png(folder / f"{rel}.png", _disc_rgba(size, albedo, means[k]))
+                pngs[f"{rel}.png"] = _to_uint8(_disc_rgba(size, albedo, means[k]))
                 ref = EnvmapRef(
                     name=pool[k].stem,
                     source=str(pool[k]),
@@ -143,7 +144,7 @@ def write_synthetic_dataset(
                 )
             area_rec = None
             if area:
-                _save_png(folder / f"area/{v:03d}.png", _disc_rgba(size, albedo, np.full(3, 0.7)))
+                pngs[f"area/{v:03d}.png"] = _to_uint8(_disc_rgba(size, albedo, np.full(3, 0.7)))
                 area_rec = AreaLightImage(
                     light=AreaLightSample(
                         location=(0.0, 0.0, 1.0), energy=400.0, scale=100.0, world_grey=0.35
@@ -166,12 +167,6 @@ def write_synthetic_dataset(
                 )
             )
         k_mat = np.array([[size, 0, size / 2], [0, size, size / 2], [0, 0, 1]], np.float64)
-        np.savez(
-            folder / "cameras.npz",
-            w2c_blender=np.stack(w2cs),
-            c2w_opencv=np.stack(c2ws),
-            intrinsics=k_mat,
-        )
         plan = ObjectPlan(
             object_id=oid,
             source=f"/synthetic/{oid}.glb",
@@ -181,27 +176,16 @@ def write_synthetic_dataset(
             ),
             config=cfg,
         )
-        manifest = object_manifest_json(
+        write_fake_object(
+            folder,
             plan,
-            source_sha256="0" * 64,
-            normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
-            files=[],
+            pngs=pngs,
+            w2c_blender=np.stack(w2cs),
+            c2w_opencv=np.stack(c2ws),
+            intrinsics=k_mat,
+            record_files=False,
         )
-        (folder / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
-    (root / "dataset.json").write_text(
-        json.dumps(
-            {
-                "schema": DATASET_SCHEMA,
-                "schema_version": DATASET_SCHEMA_VERSION,
-                "producer": dataclasses.asdict(producer()),
-                "created_utc": utc_now(),
-                "config": cfg.to_dict(),
-                "objects": ids,
-                "failures": [],
-            }
-        ),
-        encoding="utf-8",
-    )
+    write_fake_dataset_json(root, cfg, ids)
     return root
 
 
