@@ -66,7 +66,7 @@ def test_cli_relight_with_pre_encoded_maps(tmp_path, model_dir) -> None:
     Image.fromarray(maps[::-1].copy()).save(tmp_path / "hdr.png")
     args = ["relight", str(tmp_path / "obj.png"), "--ldr", str(tmp_path / "ldr.png")]
     args += ["--hdr", str(tmp_path / "hdr.png"), "--checkpoint", str(model_dir)]
-    args += ["--out", str(tmp_path / "out.png"), "--steps", "2"]
+    args += ["--out", str(tmp_path / "out.png"), "--steps", "2", "--output-size", "model"]
     assert main(args) == 0
     out = np.asarray(Image.open(tmp_path / "out.png"))
     assert out.shape == (64, 64, 3) and out.dtype == np.uint8

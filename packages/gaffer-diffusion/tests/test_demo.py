@@ -273,7 +273,8 @@ def test_relight_and_demo_without_checkpoint_use_gaffer_tiny_stand_in(
 def test_relight_without_checkpoint_uses_gaffer_tiny(tmp_path, caplog) -> None:
     args = [*_relight_args(tmp_path), "--azimuth", "30", "--elevation", "10"]
     with caplog.at_level(logging.INFO, logger="gaffer_diffusion"):
-        assert main([*args, "--out", str(tmp_path / "out.png"), "--steps", "1"]) == 0
+        out = ["--out", str(tmp_path / "out.png"), "--steps", "1", "--output-size", "model"]
+        assert main([*args, *out]) == 0
     assert "using gaffer-tiny" in caplog.text
     with Image.open(tmp_path / "out.png") as im:
         assert im.size == (128, 128)  # gaffer-tiny's resolution

@@ -58,8 +58,22 @@ from gaffer_diffusion.loading import (
 )
 from gaffer_diffusion.models.build import build_model
 from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.photo import (
+    BACKDROP_FOV_DEG,
+    Background,
+    DetailMode,
+    OutputSize,
+    Photo,
+    PreparedPhoto,
+    model_crop,
+    object_alpha,
+    paste_back,
+    prepare_photo,
+    read_mask,
+    read_photo,
+)
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
-from gaffer_diffusion.preprocess import PrepareCompat, load_object_image
+from gaffer_diffusion.preprocess import PrepareCompat
 from gaffer_diffusion.schedulers import SCHEDULERS
 
 if TYPE_CHECKING:
@@ -78,9 +92,42 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--mask",
-        type=Path,
+        type=_mask_arg,
         help="object mask (white = object) for images without alpha; a folder of masks with the "
-        "images' file names when IMAGE is a folder",
+        "images' file names when IMAGE is a folder; 'auto': a classical GrabCut estimate (offline, "
+        "no weights), written beside the output as OUT.mask.png",
+    )
+    r.add_argument(
+        "--sam-checkpoint",
+        type=Path,
+        help="a local Segment Anything checkpoint (needs `pip install segment-anything`) for the mask",
+    )
+    r.add_argument(
+        "--output-size",
+        choices=get_args(OutputSize),
+        default="input",
+        help="'input' (default): the photo at its own size, the relit object pasted back at its place; "
+        "'model': the model's square crop",
+    )
+    r.add_argument(
+        "--detail",
+        choices=get_args(DetailMode),
+        default="transfer",
+        help="how the model's result reaches full size: 'transfer' (default) applies its change of "
+        "shading to the full-resolution photo; 'resize' upsamples it bicubically",
+    )
+    r.add_argument(
+        "--background",
+        choices=get_args(Background),
+        default="input",
+        help="around the object: the photo's own pixels ('input', default) or the target environment "
+        "as the camera sees it ('envmap', needs --envmap)",
+    )
+    r.add_argument(
+        "--fov",
+        type=float,
+        default=BACKDROP_FOV_DEG,
+        help="horizontal field of view of the --background envmap camera, degrees",
     )
     light = r.add_argument_group("lighting: --envmap with a pose, or pre-encoded --ldr/--hdr maps")
     light.add_argument(
@@ -363,15 +410,21 @@ def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGaffe
         return load_model(None).model  # logs that (and where from) it uses gaffer-tiny
     if (checkpoint / MANIFEST_NAME).is_file():
         return load_pretrained(checkpoint).model
-    if base_model is None:
-        raise ConfigError(
-            f"`--checkpoint` {checkpoint} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}), so "
-            "it is taken as the authors' release, which needs `--base-model DIR` (a local Zero-1-to-3 XL "
-            "diffusers folder with vae/, image_encoder/, scheduler/, unet/config.json)."
-        )
+    _check_checkpoint_args(checkpoint, base_model)
     result = load_authors_release(checkpoint, base_model)
     logger.info("%s", result.report.summary())
     return result.model
+
+
+def _check_checkpoint_args(checkpoint: Path | None, base_model: Path | None) -> None:
+    """The checkpoint flags' consistency, checked before any input is read or weight loaded."""
+    if checkpoint is None or (checkpoint / MANIFEST_NAME).is_file() or base_model is not None:
+        return
+    raise ConfigError(
+        f"`--checkpoint` {checkpoint} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}), so "
+        "it is taken as the authors' release, which needs `--base-model DIR` (a local Zero-1-to-3 XL "
+        "diffusers folder with vae/, image_encoder/, scheduler/, unet/config.json)."
+    )
 
 
 def _pose(args: argparse.Namespace) -> Any:
@@ -426,10 +479,14 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
     return _envmap_lighting(args, args.envmap, size, frames)
 
 
-def _save_png(path: Path, image: torch.Tensor) -> None:
-    arr = (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+def _save_png(path: Path, image: torch.Tensor | np.ndarray) -> None:
+    """Write a PNG atomically: the file is complete or absent (`gaffer_envmap.atomic`)."""
+    from gaffer_envmap.atomic import atomic_path
+
+    arr = _to_uint8(image) if isinstance(image, torch.Tensor) else image
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(arr).save(path)
+    with atomic_path(path) as tmp:
+        Image.fromarray(arr).save(tmp, format="PNG")
 
 
 def _to_uint8(image: torch.Tensor) -> np.ndarray:
@@ -495,6 +552,126 @@ def _background_note(args: argparse.Namespace) -> str:
     )
 
 
+def _mask_arg(text: str) -> Path | str:
+    """`--mask`: a path, or 'auto' (GrabCut)."""
+    return "auto" if text == "auto" else Path(text)
+
+
+def _mask_out(out: Path) -> Path:
+    """Where an automatic mask is written: beside the output, `OUT.mask.png`."""
+    return out.with_name(f"{out.with_suffix('').name}.mask.png")
+
+
+def _check_photo_flags(args: argparse.Namespace) -> None:
+    """`--mask auto` / `--sam-checkpoint` / `--background` refused early, before any input is read."""
+    sam = getattr(args, "sam_checkpoint", None)
+    if sam is not None:
+        if args.mask is not None:
+            raise ConfigError("Pass `--mask` or `--sam-checkpoint`, not both.")
+        import importlib.util
+
+        if importlib.util.find_spec("segment_anything") is None:
+            raise MissingDependencyError(
+                "`--sam-checkpoint` needs segment-anything, which is not installed: "
+                "pip install segment-anything (or use `--mask auto`, the classical GrabCut fallback)."
+            )
+    if args.mask == "auto":
+        from gaffer_diffusion.automask import require_opencv
+
+        require_opencv()
+    if getattr(args, "background", "input") == "envmap":
+        if args.envmap is None and getattr(args, "envmaps", None) is None:
+            raise ConfigError(
+                "`--background envmap` shows the target environment: pass it with `--envmap ENV.exr` "
+                "(pre-encoded `--ldr/--hdr` maps cannot be shown)."
+            )
+        if not 1.0 <= args.fov < 180.0:
+            raise ConfigError(f"`--fov` is {args.fov}; expected degrees in [1, 180).")
+
+
+def _photo_and_mask(
+    args: argparse.Namespace, image: Path, mask: Path | str | None, mask_out: Path
+) -> tuple[Photo, np.ndarray, str]:
+    """The photo and its object mask, read and checked before any weights load, and a note on the mask
+    for the report (an automatic mask is written to `mask_out`)."""
+    photo = read_photo(image)
+    sam = getattr(args, "sam_checkpoint", None)
+    if sam is None and mask != "auto":
+        m = read_mask(mask, photo) if isinstance(mask, Path) else None
+        return photo, object_alpha(photo, m), ""
+    from gaffer_diffusion import automask
+    from gaffer_diffusion.photo import check_mask
+
+    if sam is not None:
+        alpha, how = automask.sam_mask(photo.rgb_u8, sam), f"Segment Anything ({sam.name})"
+    else:
+        alpha = automask.grabcut_mask(photo.rgb_u8)
+        how = "--mask auto, GrabCut: a classical fallback, not a learned segmenter"
+    check_mask(alpha, f"The automatic mask of `{image}`")
+    _save_png(mask_out, np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8))
+    note = (
+        f"mask ({how}) written to {mask_out}: check it, and pass a corrected one with "
+        f"`--mask {mask_out}`"
+    )
+    return photo, alpha, note
+
+
+def _backdrop(
+    args: argparse.Namespace,
+    envmap: Path | None,
+    height: int,
+    width: int,
+    fov: float,
+    k: int,
+    n: int,
+) -> np.ndarray | None:
+    """The target environment as the camera sees it (`--background envmap`), or None."""
+    if args.background == "input" or envmap is None:
+        return None
+    from gaffer_diffusion.photo import envmap_backdrop
+    from gaffer_envmap.io import read_envmap
+
+    env = read_envmap(envmap, sanitize=args.sanitize)
+    return envmap_backdrop(
+        env.radiance_linear,
+        _pose(args).rotation,
+        height=height,
+        width=width,
+        convention=env.convention,
+        fov_deg=fov,
+        spin_deg=k * 360.0 / n if n > 1 else 0.0,
+    )
+
+
+def _finish(
+    args: argparse.Namespace,
+    prepared: PreparedPhoto,
+    relit: torch.Tensor,
+    envmap: Path | None,
+    frame: tuple[int, int] = (0, 1),
+) -> np.ndarray:
+    """One model result as written: pasted back at the photo's size, or the model's crop."""
+    k, n = frame
+    match args.output_size:
+        case "model":
+            s = int(relit.shape[-1])
+            # the crop sees a narrower field than the photo: its share of the photo's width
+            share = prepared.framing.side_x / prepared.photo.size_wh[0]
+            fov = float(np.rad2deg(2 * np.arctan(np.tan(np.deg2rad(args.fov) / 2) * share)))
+            bd = _backdrop(args, envmap, s, s, min(fov, 179.0), k, n)
+            if bd is None:
+                return model_crop(relit)
+            m = prepared.model_input.mask[0, 0].numpy()[..., None]
+            rgb = relit.clamp(0, 1).permute(1, 2, 0).numpy()
+            return np.round((m * rgb + (1 - m) * bd) * 255).astype(np.uint8)
+        case "input":
+            h, w = prepared.alpha.shape
+            bd = _backdrop(args, envmap, h, w, args.fov, k, n)
+            return paste_back(prepared, relit, detail=args.detail, backdrop=bd)
+        case _:
+            raise ConfigError(f"`--output-size` is {args.output_size!r}; expected input or model.")
+
+
 def _relight(args: argparse.Namespace) -> int:
     if args.turntable < 0 or args.batch_size < 1:
         raise ConfigError("`--turntable` must be >= 0 and `--batch-size` >= 1.")
@@ -506,42 +683,56 @@ def _relight(args: argparse.Namespace) -> int:
         )
     if args.envmaps is not None and (args.envmap is not None or args.ldr is not None):
         raise ConfigError("Pass `--envmaps DIR` or `--envmap` / `--ldr --hdr`, not both.")
+    _check_photo_flags(args)
+    _check_checkpoint_args(args.checkpoint, args.base_model)
+    if grid:
+        return _relight_grid(args)
+    # the photo and its mask are read and checked before any weights load
+    stem = args.out.with_suffix("")
+    photo, alpha, mask_note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
-    if grid:
-        return _relight_grid(args, pipe)
     size = model.config.resolution
-    prepared = load_object_image(args.image, mask_path=args.mask, size=size, compat=_compat(args))
+    prepared = prepare_photo(photo, alpha, size=size, compat=_compat(args))
     lighting = _lighting(args, size, args.turntable)
     sampling = _sampling(args)
     n = lighting.batch_size
-    frames: list[torch.Tensor] = []
+    frames: list[np.ndarray] = []
     with _progress(n, "relight") as bar:
         for lo in range(0, n, args.batch_size):
             hi = min(lo + args.batch_size, n)
+            model_in = prepared.model_input
             cond = RelightingConditions(
-                image=prepared.image.expand(hi - lo, -1, -1, -1),
+                image=model_in.image.expand(hi - lo, -1, -1, -1),
                 lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
-                mask=None if args.full_frame else prepared.mask.expand(hi - lo, -1, -1, -1),
+                mask=None if args.full_frame else model_in.mask.expand(hi - lo, -1, -1, -1),
             )
             # the same seed for every frame: the light moves, the noise does not (less flicker)
             out = pipe(cond, sampling, seeds=[args.seed] * (hi - lo))
-            frames.extend(out.images.cpu())
+            for j, relit in enumerate(out.images.cpu()):
+                frames.append(_finish(args, prepared, relit, args.envmap, (lo + j, n)))
             bar.update(hi - lo)
+    notes = "; ".join(
+        x for x in (_size_note(args, frames[0]), _background_note(args), mask_note) if x
+    )
     if args.turntable > 1:
         from gaffer_diffusion._video import write_animation
 
-        stem = args.out.with_suffix("")
         for k, frame in enumerate(frames):
             _save_png(Path(f"{stem}_{k:03d}.png"), frame)
-        video = write_animation([_to_uint8(f) for f in frames], stem, fmt=args.video, fps=args.fps)
-        print(
-            f"wrote {len(frames)} frames {stem}_000.png ... and {video}; {_background_note(args)}"
-        )
+        video = write_animation([f[..., :3] for f in frames], stem, fmt=args.video, fps=args.fps)
+        print(f"wrote {len(frames)} frames {stem}_000.png ... and {video}; {notes}")
     else:
         _save_png(args.out, frames[0])
-        print(f"wrote {args.out}; {_background_note(args)}")
+        print(f"wrote {args.out}; {notes}")
     return 0
+
+
+def _size_note(args: argparse.Namespace, image: np.ndarray) -> str:
+    h, w = image.shape[:2]
+    if args.output_size == "model":
+        return f"{w}x{h}: the model's crop (--output-size model)"
+    return f"{w}x{h}, the input's size, detail: {args.detail} (--output-size model for the crop)"
 
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp")
@@ -557,49 +748,85 @@ def _files(folder: Path, suffixes: tuple[str, ...], what: str, flag: str) -> lis
     return files
 
 
-def _relight_grid(args: argparse.Namespace, pipe: RelightPipeline) -> int:
-    """Every image x every map, batched, one progress bar: OUT/<image stem>/<map stem>.png."""
-    size = pipe.model.config.resolution
-    images = (
-        _files(args.image, _IMAGE_SUFFIXES, "images", "IMAGE")
-        if args.image.is_dir()
-        else [args.image]
-    )
-    if args.mask is not None and args.image.is_dir() and not args.mask.is_dir():
-        raise ConfigError("With a folder of images, `--mask` must be a folder of masks too.")
-    prepared = []
+def _relight_grid(args: argparse.Namespace) -> int:
+    """Every image x every map, batched, one progress bar: OUT/<image stem>/<map stem>.png.
+
+    Each output is written atomically; an image that cannot be read or relit is reported and the
+    others go on (exit status 1 when any failed)."""
+    folder = args.image.is_dir()
+    images = _files(args.image, _IMAGE_SUFFIXES, "images", "IMAGE") if folder else [args.image]
+    if isinstance(args.mask, Path) and folder and not args.mask.is_dir():
+        raise ConfigError(
+            "With a folder of images, `--mask` must be a folder of masks too (or 'auto')."
+        )
+    failed: list[str] = []
+    loaded: list[tuple[Path, Photo, np.ndarray]] = []
+    notes: list[str] = []
     for path in images:
-        mask = args.mask / path.name if args.mask is not None and args.mask.is_dir() else args.mask
-        prepared.append(load_object_image(path, mask_path=mask, size=size, compat=_compat(args)))
+        mask = (
+            args.mask / path.name
+            if isinstance(args.mask, Path) and args.mask.is_dir()
+            else args.mask
+        )
+        try:
+            photo, alpha, note = _photo_and_mask(
+                args, path, mask, args.out / f"{path.stem}.mask.png"
+            )
+        except GafferDiffusionError as exc:
+            if not folder:
+                raise
+            failed.append(f"{path.name}: {exc}")
+            continue
+        loaded.append((path, photo, alpha))
+        notes += [note] if note else []
+    if not loaded:
+        raise InputValueError(f"None of the {len(images)} images could be used; {failed[0]}")
+    model = _load_model(args.checkpoint, args.base_model)
+    pipe = RelightPipeline(model, _runtime(args))
+    size = model.config.resolution
+    prepared = [prepare_photo(p, a, size=size, compat=_compat(args)) for _, p, a in loaded]
     if args.envmaps is not None:
         maps = _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
-        lights = [(m.stem, _envmap_lighting(args, m, size)) for m in maps]
+        lights = [(m.stem, m, _envmap_lighting(args, m, size)) for m in maps]
     else:
         label = args.envmap.stem if args.envmap is not None else args.ldr.stem
-        lights = [(label, _lighting(args, size, 0))]
-    jobs = [(i, e) for i in range(len(images)) for e in range(len(lights))]
+        lights = [(label, args.envmap, _lighting(args, size, 0))]
+    jobs = [(i, e) for i in range(len(loaded)) for e in range(len(lights))]
     sampling = _sampling(args)
     args.out.mkdir(parents=True, exist_ok=True)
+    written = 0
     with _progress(len(jobs), "relight") as bar:
         for lo in range(0, len(jobs), args.batch_size):
             chunk = jobs[lo : lo + args.batch_size]
             cond = RelightingConditions(
-                image=torch.cat([prepared[i].image for i, _ in chunk]),
-                mask=None if args.full_frame else torch.cat([prepared[i].mask for i, _ in chunk]),
+                image=torch.cat([prepared[i].model_input.image for i, _ in chunk]),
+                mask=None
+                if args.full_frame
+                else torch.cat([prepared[i].model_input.mask for i, _ in chunk]),
                 lighting=LightingMaps(
-                    ldr=torch.cat([lights[e][1].ldr for _, e in chunk]),
-                    hdr=torch.cat([lights[e][1].hdr for _, e in chunk]),
+                    ldr=torch.cat([lights[e][2].ldr for _, e in chunk]),
+                    hdr=torch.cat([lights[e][2].hdr for _, e in chunk]),
                 ),
             )
             # one seed for every item: a result does not depend on the batch it landed in
             out = pipe(cond, sampling, seeds=[args.seed] * len(chunk))
             for (i, e), image in zip(chunk, out.images.cpu(), strict=True):
-                _save_png(args.out / images[i].stem / f"{lights[e][0]}.png", image)
+                dest = args.out / loaded[i][0].stem / f"{lights[e][0]}.png"
+                try:
+                    _save_png(dest, _finish(args, prepared[i], image, lights[e][1]))
+                    written += 1
+                except (GafferDiffusionError, OSError, ValueError) as exc:
+                    failed.append(f"{dest}: {exc}")
             bar.update(len(chunk))
     print(
-        f"wrote {len(jobs)} images ({len(images)} inputs x {len(lights)} maps) under {args.out}; "
-        f"{_background_note(args)}"
+        f"wrote {written} images ({len(loaded)} inputs x {len(lights)} maps) under {args.out}; "
+        f"{_background_note(args)}" + "".join(f"; {n}" for n in notes[:1])
     )
+    if failed:
+        print(f"error: {len(failed)} failed (the others were written):", file=sys.stderr)
+        for line in failed:
+            print(f"  {line}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -775,7 +1002,12 @@ def _add_authors_commands(sub: Any) -> None:
         "prepare", help="write the model-ready square input (on white) and its mask, as PNGs"
     )
     pr.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
-    pr.add_argument("--mask", type=Path, help="object mask (white = object) for an RGB image")
+    pr.add_argument(
+        "--mask",
+        type=_mask_arg,
+        help="object mask (white = object) for an RGB image, or 'auto' (GrabCut, written as "
+        "OUT.mask.png)",
+    )
     pr.add_argument("--out", type=Path, required=True, help="output PNG (the mask: OUT_mask.png)")
     pr.add_argument(
         "--compat",
@@ -802,14 +1034,15 @@ def _prepare(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"`--size` is {args.size}; expected >= 1 (the model resolution, e.g. 256)."
         )
-    prepared = load_object_image(
-        args.image, mask_path=args.mask, size=args.size, compat=args.compat
-    )
+    _check_photo_flags(args)
+    photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    prepared = prepare_photo(photo, alpha, size=args.size, compat=args.compat).model_input
     mask_out = args.out.with_name(f"{args.out.stem}_mask.png")
     _save_png(args.out, prepared.image[0])
     arr = (prepared.mask[0, 0].clamp(0, 1).numpy() * 255.0).round().astype(np.uint8)
-    Image.fromarray(arr).save(mask_out)
-    print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat})")
+    _save_png(mask_out, arr)
+    extra = f"; {note}" if note else ""
+    print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat}){extra}")
     return 0
 
 

@@ -95,6 +95,7 @@ def test_relight_matches_the_cli(client: Any, tmp_path: Path) -> None:
     reference = tmp_path / "cli.png"
     argv = ["relight", str(photo), "--envmap", str(bundled_hdri("sunset"))]
     argv += ["--azimuth", str(POSE[0]), "--elevation", str(POSE[1]), "--out", str(reference)]
+    argv += ["--output-size", "model"]  # the app shows the model's crop
     assert main([*argv, "--device", "cpu"]) == 0
     diff = np.abs(relit_a.astype(int) - _rgb(reference).astype(int))
     assert diff.max() <= 1, f"app and CLI differ by up to {diff.max()} levels"
