@@ -184,12 +184,33 @@ def _info(args: argparse.Namespace) -> int:
 def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
     r.add_argument("--objects", required=True, type=Path, help="mesh folder or filter .jsonl")
     r.add_argument("--envmaps", required=True, type=Path, help="folder of .exr/.hdr lat-long maps")
-    r.add_argument("--out", required=True, type=Path)
-    r.add_argument("--lightings", type=int, default=lightings)
-    r.add_argument("--resolution", type=int, default=512)
-    r.add_argument("--samples", type=int, default=128)
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--workers", type=int, default=1)
+    r.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        help="dataset folder (created; rerun into it to resume, same options only)",
+    )
+    r.add_argument(
+        "--lightings",
+        type=int,
+        default=lightings,
+        help="environment-map renders per view (default: %(default)s)",
+    )
+    r.add_argument(
+        "--resolution", type=int, default=512, help="square image side in pixels (default: 512)"
+    )
+    r.add_argument(
+        "--samples", type=int, default=128, help="Cycles samples per pixel (default: 128)"
+    )
+    r.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="root seed: each object's cameras and envmap draws come from (seed, object id) only",
+    )
+    r.add_argument(
+        "--workers", type=int, default=1, help="objects rendered at once, one Blender worker each"
+    )
     r.add_argument("--shard", default="0/1", help="i/N: render the i-th of N shards")
     r.add_argument(
         "--backend",
@@ -208,16 +229,44 @@ def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
         default=None,
         help="Ray CPUs and Cycles threads per object task (default: cpu_count // workers)",
     )
-    r.add_argument("--retries", type=int, default=1)
+    r.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        help="extra attempts for a failing object before it is recorded as failed (default: 1)",
+    )
     r.add_argument("--timeout", type=float, default=None, help="seconds per worker attempt")
-    r.add_argument("--no-denoise", action="store_true")
-    r.add_argument("--adaptive-threshold", type=float, default=0.01)
-    r.add_argument("--view-transform", default="Filmic")
-    r.add_argument("--background-visible", action="store_true")
+    r.add_argument(
+        "--no-denoise", action="store_true", help="skip the OpenImageDenoise pass (default: on)"
+    )
+    r.add_argument(
+        "--adaptive-threshold",
+        type=float,
+        default=0.01,
+        help="Cycles adaptive-sampling noise threshold (0: off; default: 0.01, Blender's)",
+    )
+    r.add_argument(
+        "--view-transform",
+        default="Filmic",
+        help="Blender view transform of the PNGs: Filmic (default, the paper's), AgX, Standard, "
+        "'Khronos PBR Neutral' or Raw; the EXRs stay linear",
+    )
+    r.add_argument(
+        "--background-visible",
+        action="store_true",
+        help="show the environment map behind the object (default: transparent film, alpha = mask)",
+    )
     r.add_argument("--world-map-resolution", type=int, default=0, help="0: Blender's automatic")
-    r.add_argument("--no-flip", action="store_true")
-    r.add_argument("--yaw-steps", type=int, default=8)
-    r.add_argument("--no-progress", action="store_true")
+    r.add_argument(
+        "--no-flip", action="store_true", help="never mirror an envmap draw (default: half are)"
+    )
+    r.add_argument(
+        "--yaw-steps",
+        type=int,
+        default=8,
+        help="envmap draws are yawed by k/N of a turn, k uniform below N (default: 8; 1: no yaw)",
+    )
+    r.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -225,13 +274,17 @@ def build_parser() -> argparse.ArgumentParser:
     from gaffer_data.filter.memory_cap import DEFAULT_MAX_WORKER_MEMORY_MB
 
     parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
-    parser.add_argument("-v", "--verbose", action="store_true")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log INFO messages to stderr")
     sub = parser.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("render", help="render objects under environment maps with Blender Cycles")
     _add_render_args(r, lightings=16)
-    r.add_argument("--views", type=int, default=12)
-    r.add_argument("--no-area-light", action="store_true")
+    r.add_argument("--views", type=int, default=12, help="camera views per object (default: 12)")
+    r.add_argument(
+        "--no-area-light",
+        action="store_true",
+        help="skip the area-light render and its normal/albedo/depth passes (default: rendered)",
+    )
     r.set_defaults(func=_render)
 
     m = sub.add_parser(
@@ -239,9 +292,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="render multi-view 3D sets (train/test splits, shared lightings, transforms_*.json)",
     )
     _add_render_args(m, lightings=4)
-    m.add_argument("--train-views", type=int, default=100)
-    m.add_argument("--test-views", type=int, default=20)
-    m.add_argument("--layout", choices=["sphere", "orbit"], default="sphere")
+    m.add_argument(
+        "--train-views", type=int, default=100, help="views of the train split (default: 100)"
+    )
+    m.add_argument(
+        "--test-views", type=int, default=20, help="held-out views of the test split (default: 20)"
+    )
+    m.add_argument(
+        "--layout",
+        choices=["sphere", "orbit"],
+        default="sphere",
+        help="sphere: a Fibonacci lattice over the elevation band (default); orbit: one ring",
+    )
     m.add_argument("--min-elevation", type=float, default=-30.0, help="sphere layout, degrees")
     m.add_argument("--max-elevation", type=float, default=90.0, help="sphere layout, degrees")
     m.add_argument("--orbit-elevation", type=float, default=30.0, help="orbit layout, degrees")
@@ -291,15 +353,21 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument("features", type=Path, help="a `filter` .jsonl manifest (features)")
     t.add_argument("labels", type=Path, help="CSV with columns object_id,label (1 good, 0 bad)")
-    t.add_argument("--out", required=True, type=Path)
-    t.add_argument("--folds", type=int, default=5)
+    t.add_argument(
+        "--out", required=True, type=Path, help="folder for the trained classifier (created)"
+    )
+    t.add_argument(
+        "--folds", type=int, default=5, help="stratified cross-validation folds (default: 5)"
+    )
     t.set_defaults(func=_train)
 
     a = sub.add_parser(
         "convert-authors", help="convert the authors' released layout into a gaffer artifact"
     )
     a.add_argument("src", type=Path, help="a split folder: <split>/<obj>/{VVV}_{LLL}_{env}.png ...")
-    a.add_argument("--out", required=True, type=Path)
+    a.add_argument(
+        "--out", required=True, type=Path, help="artifact folder (created; rerun to resume)"
+    )
     a.add_argument(
         "--lighting",
         type=Path,
@@ -319,7 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_schema)
 
     i = sub.add_parser("info", help="summarise (and optionally verify) a rendered dataset")
-    i.add_argument("root", type=Path)
+    i.add_argument("root", type=Path, help="a dataset folder written by `gaffer-data render`")
     i.add_argument("--verify", action="store_true", help="check every file's sha256")
     i.set_defaults(func=_info)
     return parser

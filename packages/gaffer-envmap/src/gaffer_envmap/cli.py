@@ -204,7 +204,7 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for docs and tests)."""
     p = argparse.ArgumentParser(prog="gaffer-envmap", description=(__doc__ or "").splitlines()[0])
-    p.add_argument("-v", "--verbose", action="store_true")
+    p.add_argument("-v", "--verbose", action="store_true", help="log INFO messages to stderr")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add_src(sp: argparse.ArgumentParser, name: str = "src") -> None:
@@ -221,15 +221,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser(
         "info", help="size, range, NaN/Inf/negative counts, power, dominant light direction"
     )
-    sp.add_argument("map")
-    sp.add_argument("--json", action="store_true")
+    sp.add_argument("map", help="environment map (.exr, .hdr, .png/.jpg) to describe")
+    sp.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     sp.set_defaults(func=_cmd_info)
 
     sp = sub.add_parser(
         "rotate", help="camera-frame map (layout neural-gaffer-camera) as float32 EXR"
     )
     add_src(sp)
-    sp.add_argument("dst")
+    sp.add_argument("dst", help="output camera-frame map (.exr, float32; folders are created)")
     sp.add_argument("--w2c", required=True, help="3x4 or 4x4 Blender world-to-camera .npy")
     sp.add_argument(
         "--size", type=int, default=None, help="output height (width = 2*height); default: source"
@@ -258,14 +258,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("encode", help="the model's ldr.png and hdr.png (size x size, 8-bit RGB)")
     add_src(sp)
     sp.add_argument("--w2c", required=True, help="3x4 or 4x4 Blender world-to-camera .npy")
-    sp.add_argument("--out-dir", required=True)
+    sp.add_argument("--out-dir", required=True, help="folder for ldr.png and hdr.png (created)")
     sp.add_argument(
         "--compat",
         choices=COMPAT_MODES,
         default="default",
         help="neural-gaffer: bit-compatible with the released checkpoint",
     )
-    sp.add_argument("--size", type=int, default=256)
+    sp.add_argument(
+        "--size", type=int, default=256, help="side of the square maps in pixels (default: 256)"
+    )
     sp.add_argument(
         "--spin",
         type=_finite_float,
@@ -278,7 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser("augment", help="exact flips and yaw steps (the paper's pool augmentation)")
     add_src(sp)
-    sp.add_argument("--out-dir", required=True)
+    sp.add_argument(
+        "--out-dir", required=True, help="folder for the <stem>_<tag>.exr maps (created)"
+    )
     sp.add_argument("--flips", action="store_true", help="also write mirrored copies")
     sp.add_argument(
         "--yaw-steps",
@@ -292,7 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
         "procedural",
         help="random HDR skies with suns / soft lights (gaffer_envmap.procedural), one per seed",
     )
-    sp.add_argument("--out-dir", required=True)
+    sp.add_argument(
+        "--out-dir", required=True, help="folder for the proc_<seed>.exr maps (created)"
+    )
     sp.add_argument("--first", type=int, default=0, help="first seed")
     sp.add_argument(
         "--count", type=int, default=60, help="number of maps (seeds first, first+1, ...)"
@@ -303,11 +309,16 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser(
         "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"
     )
-    sp.add_argument("--out", default="out/demo")
+    sp.add_argument("--out", default="out/demo", help="output folder (created; default: out/demo)")
     sp.add_argument(
         "--hdri", default="sunset", help="bundled HDRI name (city, courtyard, forest, ...)"
     )
-    sp.add_argument("--size", type=int, default=256)
+    sp.add_argument(
+        "--size",
+        type=int,
+        default=256,
+        help="side of the encoded ldr/hdr maps in pixels (default: 256)",
+    )
     sp.set_defaults(func=_cmd_demo)
     return p
 
