@@ -9,6 +9,7 @@ existing destination is left byte-for-byte untouched.
 import contextlib
 import logging
 import os
+import shutil
 import tempfile
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import TypeVar
 
 from gaffer_envmap.errors import EnvmapWriteError
 
-__all__ = ["atomic_path", "atomic_write"]
+__all__ = ["atomic_files", "atomic_path", "atomic_write"]
 
 logger = logging.getLogger(__name__)
 
@@ -138,3 +139,51 @@ def atomic_write(path: str | os.PathLike[str], write_fn: Callable[[Path], T]) ->
     """
     with atomic_path(path) as tmp:
         return write_fn(tmp)
+
+
+@contextlib.contextmanager
+def atomic_files(directory: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a staging folder; on success its files move into `directory` together, else none do.
+
+    For commands that write many files (augmentation pools, procedural sets): the files are written
+    into a hidden staging folder inside `directory` (same file system), and only when the block ends
+    without an error are they renamed into place, one `os.replace` each, a few microseconds apart.
+    On an error or Ctrl-C the staging folder is removed, `directory` keeps exactly what it held before,
+    and a `directory` this call created is removed again when empty (issue 17: no partial outputs).
+    A kill -9 can leave only the hidden `.partial-*` folder, never a partial set under final names.
+
+    Args:
+        directory: the destination folder (created when missing). The staging folder is flat:
+            files written into sub-folders of it are not moved.
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> d = Path(tempfile.mkdtemp()) / "maps"
+        >>> with atomic_files(d) as stage:
+        ...     _ = (stage / "a.txt").write_text("a")
+        ...     _ = (stage / "b.txt").write_text("b")
+        >>> sorted(p.name for p in d.iterdir())
+        ['a.txt', 'b.txt']
+    """
+    dest = Path(directory)
+    created = not dest.exists()
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=".partial-", dir=dest))
+    except OSError as exc:
+        raise EnvmapWriteError(
+            f"Cannot write into `{dest}` ({type(exc).__name__}: {exc}); pick a writable folder."
+        ) from exc
+    try:
+        yield stage
+        for f in sorted(stage.iterdir()):
+            if f.is_file():
+                _fsync_file(f)
+                os.replace(f, dest / f.name)
+        _fsync_dir(dest)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created:
+            with contextlib.suppress(OSError):
+                dest.rmdir()  # only succeeds when the folder is still empty (a failed run)

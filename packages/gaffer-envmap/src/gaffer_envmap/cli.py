@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.encode import encode_lighting
@@ -112,11 +113,11 @@ def _cmd_encode(args: argparse.Namespace) -> int:
 def _cmd_augment(args: argparse.Namespace) -> int:
     env = read_envmap(args.src, sanitize=args.sanitize)
     out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     stem = Path(args.src).stem
     pool = augment_pool(env, flips=args.flips, yaw_steps=args.yaw_steps)
-    for spec, aug in pool:
-        write_envmap(out / f"{stem}_{spec.tag}.exr", aug)
+    with atomic_files(out) as stage:  # all maps or none (issue 17)
+        for spec, aug in pool:
+            write_envmap(stage / f"{stem}_{spec.tag}.exr", aug)
     print(f"wrote {len(pool)} maps to {out}")
     return 0
 
@@ -131,9 +132,9 @@ def _cmd_procedural(args: argparse.Namespace) -> int:
     if args.height < 8:
         raise GafferEnvmapError(f"`--height` is {args.height}; pass 8 or more rows.")
     out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for seed in range(args.first, args.first + args.count):
-        write_envmap(out / f"proc_{seed:04d}.exr", procedural_envmap(seed, args.height))
+    with atomic_files(out) as stage:  # all maps or none (issue 17)
+        for seed in range(args.first, args.first + args.count):
+            write_envmap(stage / f"proc_{seed:04d}.exr", procedural_envmap(seed, args.height))
     print(
         f"wrote {args.count} procedural maps (seeds {args.first}..{args.first + args.count - 1}) to {out}"
     )

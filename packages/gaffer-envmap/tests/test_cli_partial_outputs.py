@@ -1,0 +1,107 @@
+"""Multi-file outputs of `gaffer-envmap` are complete or absent (issue 17, item 3)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gaffer_envmap import cli, write_envmap
+from gaffer_envmap.atomic import atomic_files
+from gaffer_envmap.cli import main
+from gaffer_envmap.testing import disc_sun_map
+
+
+@pytest.fixture
+def sky(tmp_path: Path) -> Path:
+    src = tmp_path / "sky.exr"
+    write_envmap(src, disc_sun_map(32, np.array([0.0, 1.0, 0.5]), 5.0, 500.0, sky=0.3))
+    return src
+
+
+def _failing_after(n: int, exc: BaseException):
+    real = cli.write_envmap
+    calls = {"n": 0}
+
+    def write(path, *a, **k):
+        calls["n"] += 1
+        if calls["n"] > n:
+            raise exc
+        return real(path, *a, **k)
+
+    return write
+
+
+@pytest.mark.parametrize("exc", [OSError(28, "No space left on device"), KeyboardInterrupt()])
+def test_augment_failing_midway_leaves_no_new_folder(
+    sky: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, exc: BaseException
+) -> None:
+    out = tmp_path / "pool"
+    monkeypatch.setattr(cli, "write_envmap", _failing_after(5, exc))
+    code = main(["augment", str(sky), "--out-dir", str(out), "--flips", "--yaw-steps", "8"])
+    assert code != 0
+    assert not out.exists()
+
+
+def test_augment_failing_midway_keeps_an_earlier_complete_pool(
+    sky: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "pool"
+    assert main(["augment", str(sky), "--out-dir", str(out), "--yaw-steps", "4"]) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    monkeypatch.setattr(cli, "write_envmap", _failing_after(3, OSError(28, "disk full")))
+    assert main(["augment", str(sky), "--out-dir", str(out), "--flips", "--yaw-steps", "8"]) != 0
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_procedural_failing_midway_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out = tmp_path / "proc"
+    monkeypatch.setattr(cli, "write_envmap", _failing_after(2, OSError(28, "disk full")))
+    assert main(["procedural", "--out-dir", str(out), "--count", "5", "--height", "8"]) != 0
+    assert not out.exists()
+
+
+def test_atomic_files_moves_nothing_when_the_block_raises(tmp_path: Path) -> None:
+    (tmp_path / "keep.txt").write_text("old")
+    with pytest.raises(RuntimeError), atomic_files(tmp_path) as stage:
+        (stage / "keep.txt").write_text("new")
+        raise RuntimeError("boom")
+    assert [p.name for p in tmp_path.iterdir()] == ["keep.txt"]
+    assert (tmp_path / "keep.txt").read_text() == "old"
+
+
+@pytest.mark.skipif(os.name != "posix", reason="SIGKILL")
+def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> None:
+    out = tmp_path / "pool"
+    out.mkdir()
+    sky = tmp_path / "big.exr"
+    write_envmap(sky, disc_sun_map(256, np.array([0.0, 1.0, 0.5]), 5.0, 500.0, sky=0.3))
+    # 1024 maps of 256 rows: long enough to be caught in the middle
+    proc = subprocess.Popen(
+        [
+            *(sys.executable, "-m", "gaffer_envmap.cli", "augment", str(sky)),
+            *("--out-dir", str(out), "--flips", "--yaw-steps", "512"),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 120
+    staged = 0
+    while time.monotonic() < deadline and proc.poll() is None:
+        stages = list(out.glob(".partial-*"))
+        staged = sum(1 for s in stages for _ in s.glob("*.exr"))
+        if staged >= 3:
+            break
+        time.sleep(0.02)
+    if proc.poll() is not None:
+        pytest.skip("augment finished before it could be killed")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert staged >= 3
+    assert list(out.glob("*.exr")) == []  # only the hidden staging folder may remain
