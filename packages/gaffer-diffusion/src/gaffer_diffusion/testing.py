@@ -142,14 +142,14 @@ def write_tiny_render_dataset(
     Returns:
         `root`, the dataset folder (`root/objects/disc/`).
     """
-    from gaffer_data.dataset import sha256_file
-    from gaffer_data.dataset.schema import (
+    from gaffer_data.dataset import (
         CameraSample,
         EnvmapRef,
         Intrinsics,
         LitImage,
         ObjectPlan,
         ViewRecord,
+        sha256_file,
     )
     from gaffer_data.testing import tiny_config, write_fake_object
     from gaffer_envmap import EnvironmentMap, write_envmap
