@@ -348,6 +348,30 @@ def test_kill_9_the_run_then_rerun_completes(inputs, tmp_path: Path) -> None:
     )
 
 
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs process groups")
+def test_kill_9_mid_object_then_resume_writes_the_bytes_of_a_clean_run(
+    inputs, tmp_path: Path
+) -> None:
+    objects = _objects_only(inputs, tmp_path)
+    clean, resumed = tmp_path / "clean", tmp_path / "resumed"
+    result = subprocess.run(_cli(objects, inputs[1], clean), capture_output=True, timeout=300)
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+    proc = subprocess.Popen(
+        _cli(objects, inputs[1], resumed),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    partial = resumed / "objects" / "cube" / "lit" / "001_000.exr"
+    _wait_for(lambda: partial.exists() or proc.poll() is not None)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=30)
+    result = subprocess.run(_cli(objects, inputs[1], resumed), capture_output=True, timeout=300)
+    assert result.returncode == 0, result.stderr.decode()[-2000:]
+    for name in ("cube", "sphere"):
+        _assert_same_bytes(clean / "objects" / name, resumed / "objects" / name)
+
+
 def test_the_worker_process_never_imports_torch(inputs, tmp_path: Path) -> None:
     from gaffer_data.render.plan import plan_object
     from gaffer_data.render.runner import PLAN_NAME, _prepare_folder
