@@ -545,6 +545,8 @@ def _runtime(args: argparse.Namespace) -> RuntimeConfig:
 
 def _background_note(args: argparse.Namespace) -> str:
     """The background choice, named in every relight report (issue 15, reading 5)."""
+    if getattr(args, "background", "input") == "envmap":
+        return "background: the target environment as the camera sees it (--background envmap)"
     if args.full_frame:
         return "background: the model's full frame (--full-frame, the authors' protocol)"
     return (

@@ -383,7 +383,7 @@ def envmap_backdrop(
     a = np.deg2rad(-spin_deg)
     rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
     u, v = direction_to_uv(d_world @ rz.T, convention)
-    env = torch.from_numpy(np.ascontiguousarray(radiance_linear, np.float32)).permute(2, 0, 1)
+    env = torch.from_numpy(np.array(radiance_linear, np.float32, copy=True)).permute(2, 0, 1)
     we = env.shape[2]
     padded = torch.cat([env[:, :, -1:], env, env[:, :, :1]], dim=2)[None]  # wrap the seam
     gx = ((u * we + 1) / (we + 2)) * 2 - 1
