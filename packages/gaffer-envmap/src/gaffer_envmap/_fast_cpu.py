@@ -21,6 +21,7 @@ per 256 x 256 map; numba compiles the loops once (cached on disk) and needs no C
 import math
 import os
 from functools import lru_cache
+from typing import no_type_check
 
 # numba picks TBB first when it can import it; an old system TBB then only warns (and pytest turns
 # warnings into errors). The workqueue layer ships with numba, so choose it unless the user did
@@ -42,6 +43,9 @@ from gaffer_envmap.conservative import (
 from gaffer_envmap.conventions import row_solid_angle
 
 _TWO_PI = 2.0 * math.pi
+
+# Every kernel is `@no_type_check`: numba compiles the Python function itself, so the jaxtyping +
+# beartype hook of the tests must not wrap it (numba can neither compile nor cache the wrapper).
 
 
 _f = np.float32
@@ -75,6 +79,7 @@ _ZERO, _HALF, _ONE = _f(0.0), _f(0.5), _f(1.0)
 
 
 @njit(inline="always", fastmath=True)
+@no_type_check
 def _atan2(y: float, x: float) -> float:
     """atan2 from a degree-11 odd minimax polynomial on [0, 1] (max error about 1e-6 rad), float32."""
     ax, ay = abs(x), abs(y)
@@ -88,6 +93,7 @@ def _atan2(y: float, x: float) -> float:
 
 
 @njit(inline="always", fastmath=True)
+@no_type_check
 def _acos(z: float) -> float:
     """acos from Abramowitz & Stegun 4.4.46 (max error 2e-8 rad; float32 here)."""
     a = min(abs(z), _ONE)
@@ -96,6 +102,7 @@ def _acos(z: float) -> float:
     return _PI - r if z < _ZERO else r
 
 
+@no_type_check
 def _stage_cells(
     src: np.ndarray,
     fac: int,
@@ -136,6 +143,7 @@ def _stage_cells(
     return peak
 
 
+@no_type_check
 def _stage_taps(
     dirs: np.ndarray,
     m: np.ndarray,
@@ -196,6 +204,7 @@ def _stage_taps(
         wts[3, s] = fy * fx1
 
 
+@no_type_check
 def _stage_gather(
     corrected: np.ndarray,
     idx: np.ndarray,
@@ -243,6 +252,7 @@ _POW2_NEG = np.array([2.0**-k for k in range(128)], np.float32)
 
 
 @njit(inline="always", fastmath=True)
+@no_type_check
 def _ln(m: float, e: float) -> float:
     """ln(m 2^e) for a mantissa m in [1, 2): m moved into [sqrt(1/2), sqrt(2)), then
     ln(m) = 2 atanh(z), z = (m - 1) / (m + 1), |z| <= 0.172 (series to z^9: below float32 rounding)."""
@@ -255,12 +265,14 @@ def _ln(m: float, e: float) -> float:
 
 
 @njit(inline="always", fastmath=True)
+@no_type_check
 def _exp2_frac(f: float) -> float:
     """2^f for f in [0, 1): Taylor series of e^(f ln 2) to degree 7 (error about 1e-7)."""
     t = f * _LN2
     return _ONE + t * (_ONE + t * (_E2 + t * (_E3 + t * (_E4 + t * (_E5 + t * (_E6 + t * _E7))))))
 
 
+@no_type_check
 def _stage_encode(
     rad: np.ndarray,
     inv_log_peak: float,
@@ -302,6 +314,7 @@ def _stage_encode(
         hdr[i] = min(max(ln1 * inv, _ZERO), _ONE)
 
 
+@no_type_check
 def _scatter_cover(
     idx: np.ndarray, wts: np.ndarray, w_rows: np.ndarray, ws: int, cover: np.ndarray
 ) -> None:
@@ -312,6 +325,7 @@ def _scatter_cover(
             cover[idx[t, s]] += w_s * wts[t, s]
 
 
+@no_type_check
 def _gains(
     lbar: np.ndarray, cover: np.ndarray, omega_cell: np.ndarray, corrected: np.ndarray
 ) -> int:
@@ -326,6 +340,7 @@ def _gains(
     return lost
 
 
+@no_type_check
 def _splat_lost(
     lbar: np.ndarray,
     cover: np.ndarray,
@@ -370,6 +385,7 @@ _splat_lost = _jit(_splat_lost)
 
 
 @_jit
+@no_type_check
 def _inv_log_peak(peak: float) -> float:
     """1 / log1p(10 peak) as `encode.hdr_encode` takes it (0 for an all-black map)."""
     denom = math.log1p(10.0 * min(max(peak, 0.0), 3.4e38 / 40.0))
@@ -377,6 +393,7 @@ def _inv_log_peak(peak: float) -> float:
 
 
 @_jit
+@no_type_check
 def _encode_one(
     src,
     m,
@@ -431,6 +448,7 @@ def _encode_one(
 
 
 @njit(fastmath=True, cache=True, nogil=True, parallel=True)
+@no_type_check
 def _encode_batch(
     src,
     m,

@@ -8,9 +8,16 @@ gaffer-diffusion and gaffer-nerf take `Compat`, `COMPAT_MODES` (argparse `choice
 (the wording of the refusal) from here instead of spelling the modes out again (issue 14).
 """
 
-from typing import Literal, TypeGuard, get_args
+from typing import TYPE_CHECKING, Literal, TypeAlias, TypeGuard, get_args
 
 Compat = Literal["default", "neural-gaffer"]
+
+if TYPE_CHECKING:
+    CompatArg: TypeAlias = Compat
+else:
+    CompatArg = str
+"""A `compat` parameter: `Compat` to the type checker, any str at run time, because the function
+refuses an unknown mode itself (with `compat_problem`'s wording), also under the test-time type hook."""
 
 COMPAT_MODES: tuple[Compat, ...] = get_args(Compat)
 """Every mode, default first: the `choices` of each `--compat` flag."""

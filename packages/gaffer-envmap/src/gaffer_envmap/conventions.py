@@ -86,8 +86,8 @@ class LatLongConvention:
 def _conv(name, up, centre, mirrored, alignment, frame, to_blender, source) -> LatLongConvention:
     return LatLongConvention(
         name=name,
-        up=up,
-        centre=centre,
+        up=(float(up[0]), float(up[1]), float(up[2])),
+        centre=(float(centre[0]), float(centre[1]), float(centre[2])),
         mirrored=mirrored,
         file_alignment=alignment,
         frame=frame,
@@ -212,8 +212,11 @@ def uv_to_direction(u: np.ndarray, v: np.ndarray, convention: str = "blender") -
     return local @ conv.basis
 
 
-def direction_to_uv(dirs: np.ndarray, convention: str = "blender") -> tuple[np.ndarray, np.ndarray]:
-    """Image coordinates (u in [0, 1), v in [0, 1]) of directions `[..., 3]` (need not be unit)."""
+def direction_to_uv(
+    dirs: np.ndarray, convention: str = "blender"
+) -> tuple[np.ndarray | np.float64, np.ndarray | np.float64]:
+    """Image coordinates (u in [0, 1), v in [0, 1]) of directions `[..., 3]` (need not be unit); numpy
+    scalars for a single direction `[3]`."""
     conv = get_convention(convention)
     d = np.asarray(dirs, dtype=np.float64)
     if d.shape[-1] != 3:

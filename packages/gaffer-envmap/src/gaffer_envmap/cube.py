@@ -259,6 +259,6 @@ def latlong_to_cube(env: EnvironmentMap, face_size: int, *, supersample: int = 2
     dirs_exr = np.einsum("fij,rcj->frci", _FACE_MATRIX, abc)  # [6, N*S, N*S, 3]
     dirs = dirs_exr @ _frame_to_openexr(env.convention)  # rows: inverse (orthogonal) map
     u, v = direction_to_uv(dirs, env.convention)
-    samples = _sample_latlong(env, u, v)  # [6, N*S, N*S, 3]
+    samples = _sample_latlong(env, np.asarray(u), np.asarray(v))  # [6, N*S, N*S, 3]
     cube = samples.reshape(6, n, s, n, s, 3).mean(axis=(2, 4))
     return cube.reshape(6 * n, n, 3).astype(np.float32)

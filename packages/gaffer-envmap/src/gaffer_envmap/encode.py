@@ -26,7 +26,7 @@ from gaffer_envmap.compat import (
     rotate_neural_gaffer,
     spin_matrices_neural_gaffer,
 )
-from gaffer_envmap.compat_mode import Compat, compat_problem
+from gaffer_envmap.compat_mode import Compat, CompatArg, compat_problem, is_compat
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import GafferEnvmapError, ShapeError
 from gaffer_envmap.poses import W2CBlender
@@ -125,7 +125,7 @@ def encode_lighting(
     w2c_blender: "W2CBlender | Sequence[W2CBlender] | np.ndarray | Tensor",
     *,
     size: int = 256,
-    compat: Compat = "default",
+    compat: CompatArg = "default",
     spin_deg: "float | Tensor" = 0.0,
     filter: Filter = "area",
     supersample: int = 2,
@@ -161,6 +161,8 @@ def encode_lighting(
     src, rot = _pair(env, w2c_blender, device)
     if size < 1:
         raise GafferEnvmapError(f"`size` must be >= 1, got {size}.")
+    if not is_compat(compat):
+        raise GafferEnvmapError(compat_problem("compat", compat))
     if compat == "neural-gaffer":
         spin = None
         if not (isinstance(spin_deg, float | int) and spin_deg == 0):
@@ -170,8 +172,6 @@ def encode_lighting(
         ldr_u8, hdr_u8 = encode_neural_gaffer(rotated, size)
         to_t = lambda a: torch.from_numpy(a).to(src.device).permute(0, 3, 1, 2).float() / 255  # noqa: E731
         return LightingEncoding(ldr=to_t(ldr_u8), hdr=to_t(hdr_u8), compat=compat)
-    if (problem := compat_problem("compat", compat)) is not None:
-        raise GafferEnvmapError(problem)
     if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
         src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
     if filter == "conservative" and src.device.type == "cpu" and src.dtype == torch.float32:

@@ -9,7 +9,7 @@ Neural Gaffer data uses a pure 2.2 power). Writing quantises [0, 1] floats with 
 import logging
 import os
 from pathlib import Path
-from typing import Any, Literal, assert_never
+from typing import TYPE_CHECKING, Any, Literal, TypeGuard, assert_never, get_args
 
 import numpy as np
 
@@ -105,7 +105,17 @@ def read_ldr(path: str | os.PathLike[str]) -> np.ndarray:
     return np.ascontiguousarray(scaled)
 
 
-def decode_to_linear(values: np.ndarray, encoding: LdrEncoding = "srgb") -> np.ndarray:
+if TYPE_CHECKING:
+    _EncodingArg = LdrEncoding
+else:  # at run time any str reaches `decode_to_linear`, which refuses an unknown one with a ValueError
+    _EncodingArg = str
+
+
+def _is_encoding(encoding: str) -> TypeGuard[LdrEncoding]:
+    return encoding in get_args(LdrEncoding)
+
+
+def decode_to_linear(values: np.ndarray, encoding: _EncodingArg = "srgb") -> np.ndarray:
     """Map encoded values in [0, 1] to linear light.
 
     Args:
@@ -122,7 +132,7 @@ def decode_to_linear(values: np.ndarray, encoding: LdrEncoding = "srgb") -> np.n
         >>> decode_to_linear(np.array([0.0, 0.5, 1.0]), "gamma2.2").astype(float).round(4).tolist()
         [0.0, 0.2176, 1.0]
     """
-    if encoding not in ("srgb", "gamma2.2", "linear"):
+    if not _is_encoding(encoding):
         raise ValueError(f"`encoding` must be 'srgb', 'gamma2.2' or 'linear'; got {encoding!r}.")
     v = np.asarray(values, dtype=np.float32)
     if encoding == "srgb":

@@ -146,7 +146,7 @@ def look_at_w2c_blender(
 
 
 def orbit_w2c_blender(
-    azimuth_deg: float, elevation_deg: float, distance: float = 1.0
+    azimuth_deg: float | int, elevation_deg: float | int, distance: float | int = 1.0
 ) -> W2CBlender:
     """Camera on a sphere around the origin looking at it (world z up).
 

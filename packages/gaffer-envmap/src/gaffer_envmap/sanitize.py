@@ -8,7 +8,7 @@ normalisation into zeros, so maps are checked once, on load (the policy is an ar
 import dataclasses
 import logging
 from dataclasses import dataclass
-from typing import Literal, assert_never
+from typing import TYPE_CHECKING, Literal, TypeGuard, assert_never
 
 import numpy as np
 
@@ -88,15 +88,18 @@ class SanitizeReport:
         )
 
 
-def _check_policy(policy: str) -> None:
-    if policy not in _POLICIES:
-        raise ValueError(
-            f"`policy` must be one of {', '.join(repr(p) for p in _POLICIES)}; got {policy!r}."
-        )
+if TYPE_CHECKING:
+    _PolicyArg = SanitizePolicy
+else:  # at run time any str reaches `sanitize`, which refuses an unknown one with a ValueError
+    _PolicyArg = str
+
+
+def _is_policy(policy: str) -> TypeGuard[SanitizePolicy]:
+    return policy in _POLICIES
 
 
 def sanitize(
-    radiance: np.ndarray, policy: SanitizePolicy = "raise", *, name: str = "radiance"
+    radiance: np.ndarray, policy: _PolicyArg = "raise", *, name: str = "radiance"
 ) -> tuple[np.ndarray, SanitizeReport]:
     """Check an array for NaN, ±Inf and negative values and apply `policy`.
 
@@ -121,7 +124,10 @@ def sanitize(
         >>> y.tolist(), report.describe()
         ([1.0, 0.0, 3.0, 0.0, 3.0], '1 NaN, 1 +Inf, 0 -Inf, 1 negative')
     """
-    _check_policy(policy)
+    if not _is_policy(policy):
+        raise ValueError(
+            f"`policy` must be one of {', '.join(repr(p) for p in _POLICIES)}; got {policy!r}."
+        )
     arr = np.asarray(radiance)
     if not np.issubdtype(arr.dtype, np.floating):
         negative = (
@@ -168,7 +174,7 @@ def sanitize(
         finite = arr[np.isfinite(arr)]
         replacement = float(finite.max()) if finite.size else 0.0
         replacement = max(replacement, 0.0)
-    else:  # pragma: no cover - _check_policy rejected everything else
+    else:  # pragma: no cover - the check above rejected everything else
         assert_never(policy)
     out = arr.copy()
     out[nan | neginf | negative] = 0

@@ -8,6 +8,7 @@ paths they check.
 import math
 
 import numpy as np
+import numpy.typing as npt
 from PIL import Image
 
 from gaffer_envmap.conventions import direction_grid, row_solid_angle
@@ -147,7 +148,7 @@ def relative_rms(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(np.mean((a - b) ** 2)) / max(np.sqrt(np.mean(b**2)), 1e-30))
 
 
-def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+def angle_deg(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     """Angle between two vectors in degrees."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     c = a @ b / (np.linalg.norm(a) * np.linalg.norm(b))
