@@ -12,7 +12,8 @@ Two parts, one JSON + PNG (`nerf`, see `_common.write_results`):
    footprint, not the cap, sets the size). Per fit: seconds, final grid, factor-grid MiB, and the PSNR of
    the field's renders of the held-out test views (input lighting).
 2. Relighting the fixed-32^3 field under the target lighting:
-   - the whole `relight_field` with the tiny RANDOM diffusion model (`gaffer_diffusion.testing.tiny_model`):
+   - the whole `relight_field` with the tiny RANDOM diffusion model (`gaffer_nerf.guidance.smoke_model`,
+     sampled with 10 DDIM steps, set explicitly since the random model suggests none of its own):
      timings per phase only (weight cache, encoding, relit views, Stage 1, Stage 2); its images are noise,
      so no accuracy is reported for it;
    - Stage 1 alone with "oracle" relit views (ground-truth renders of the training views under the target
@@ -105,14 +106,16 @@ def run_relight(
 ) -> dict[str, Any]:
     """Phase timings with the random tiny model; Stage 1 with oracle relit views against the target."""
     from gaffer_diffusion import RelightPipeline
-    from gaffer_diffusion.testing import tiny_model
     from gaffer_nerf import load_perceptual_loss, relight_field, relight_preset
     from gaffer_nerf.evaluate import evaluate_field
-    from gaffer_nerf.guidance import DiffusionGuide
+    from gaffer_nerf.guidance import DiffusionGuide, smoke_model
 
     floor, _ = evaluate_field(field, test_target, perceptual=None)
     cfg = relight_preset("tiny")
-    guide = DiffusionGuide(RelightPipeline(tiny_model()), cfg.diffusion)
+    cfg = dataclasses.replace(
+        cfg, diffusion=dataclasses.replace(cfg.diffusion, num_inference_steps=10)
+    )
+    guide = DiffusionGuide(RelightPipeline(smoke_model()), cfg.diffusion)
     perceptual = load_perceptual_loss()
     t0 = time.perf_counter()
     res = relight_field(field, train, env1, guide, cfg, perceptual)
@@ -128,10 +131,10 @@ def run_relight(
     }
     common.log(f"  relight, random tiny model: {phases} (wall {wall:.1f} s)")
     full = {
-        "model": "tiny random-init (gaffer_diffusion.testing.tiny_model)",
+        "model": "tiny random-init (gaffer_nerf.guidance.smoke_model)",
         "stage1_iterations": r.stage1.iterations,
         "stage2_iterations": r.stage2.iterations,
-        "num_inference_steps": cfg.diffusion.num_inference_steps,
+        "num_inference_steps": guide.sampling.num_inference_steps,
         "training_views": train.cameras.num_views,
         "perceptual": r.perceptual_name or f"none ({r.perceptual_unavailable_reason})",
         "phase_seconds": phases,

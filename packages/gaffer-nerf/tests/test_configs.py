@@ -6,6 +6,7 @@ import pytest
 
 from gaffer_nerf.configs import (
     ABLATIONS,
+    PAPER_SAMPLING,
     FitConfig,
     RelightConfig,
     SceneBoxConfig,
@@ -49,7 +50,14 @@ def test_paper_defaults_match_the_reference() -> None:
         0.5,
     )
     assert s2.lr_gamma == pytest.approx(0.1 ** (1 / 200)) and s2.t_schedule == "exponential"
-    assert (rel.diffusion.num_inference_steps, rel.diffusion.guidance_scale) == (50, 3.0)
+    # sampling is the model's own unless set; a model without a suggestion gets the paper's 50 / 3
+    assert (rel.diffusion.num_inference_steps, rel.diffusion.guidance_scale) == (None, None)
+    paper = rel.diffusion.resolved(PAPER_SAMPLING)
+    assert (paper.num_inference_steps, paper.guidance_scale, paper.compat) == (
+        50,
+        3.0,
+        "neural-gaffer",
+    )
 
 
 def test_ablations() -> None:

@@ -3,15 +3,21 @@
     gaffer-nerf fit DATA --out FIELD [--preset paper|tiny] [--iterations N] [--lighting-index 0]
         [--sizing fixed|footprint] [--early-stopping] [--rank-selection [--rank-ladder 0.25 0.5 1]
         [--rank-tolerance DB]] [--device cuda]
-    gaffer-nerf relight FIELD --data DATA --target-lighting K [--envmaps DIR | --envmap FILE]
-        (--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny) --out RELIT
-        [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
+    gaffer-nerf relight FIELD --data DATA --target-lighting K [--envmaps DIR | --envmap FILE|NAME]
+        [--sanitize zero|clamp|raise|strict] [--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny]
+        --out RELIT [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
+        [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
     gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
     gaffer-nerf evaluate FIELD --data DATA --target-lighting K [--split test] [--json F]
 
 DATA is a gaffer-data multi-view object folder or a NeRF-Synthetic scene (`transforms_*.json`).
 FIELD is a folder written by `fit` / `relight` (`config.json` + `field.safetensors`).
+Without `--checkpoint`, `relight` uses gaffer-tiny, the 128 px model shipped with gaffer-diffusion
+(as `gaffer-diffusion relight` does), and says so. Every stage samples the model with its own
+suggested setting (gaffer-tiny: 1 step, guidance 1, mirror average, "default" encoding; the authors'
+release: the paper's 50 steps, guidance 3) unless `--steps`, `--guidance`, `--average-samples`,
+`--mirror-average` or `--compat` say otherwise.
 `--diffusion-preset tiny` uses a RANDOM tiny model: for smoke tests only, its relighting is noise.
 """
 
@@ -77,10 +83,23 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--data", type=Path, required=True, help="the multi-view folder it was fit to")
     r.add_argument("--input-lighting", type=int, default=0, help="lighting of the inputs (0)")
     r.add_argument("--target-lighting", type=int, help="gaffer-data lighting index to relight to")
-    r.add_argument("--envmap", type=Path, help="target env map file (instead of --target-lighting)")
+    r.add_argument(
+        "--envmap",
+        help="target env map: a file (.exr/.hdr), or a bundled HDRI name (city, courtyard, forest, "
+        "...), instead of --target-lighting",
+    )
     r.add_argument("--envmaps", type=Path, help="folder holding the pool's env maps")
     r.add_argument(
-        "--checkpoint", type=Path, help="diffusion model: our folder or checkpoint-80000/"
+        "--sanitize",
+        choices=("zero", "clamp", "raise", "strict"),
+        default="zero",
+        help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail ('raise' still "
+        "sets tiny negatives from lossy compression to 0, 'strict' refuses any)",
+    )
+    r.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="diffusion model: our folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 128 px)",
     )
     r.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
     r.add_argument("--diffusion-preset", choices=("tiny",), help="random tiny model (smoke tests)")
@@ -90,7 +109,34 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--t-schedule", choices=("exponential", "authors"), default="exponential")
     r.add_argument("--stage1-iterations", type=int)
     r.add_argument("--stage2-iterations", type=int)
-    r.add_argument("--steps", type=int, help="DDIM steps of the full schedule (50)")
+    r.add_argument(
+        "--steps",
+        type=int,
+        help="DDIM steps of the full schedule (default: the model's suggestion)",
+    )
+    r.add_argument(
+        "--guidance", type=float, help="CFG scale, also of SDS (default: the model's suggestion)"
+    )
+    r.add_argument(
+        "--average-samples",
+        type=int,
+        default=None,
+        help="mean of K samples per relit view / target (default: the model's suggestion)",
+    )
+    r.add_argument(
+        "--mirror-average",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="average with the view mirrored left-right under the mirrored lighting (2x the cost; "
+        "default: the model's suggestion, gaffer-tiny: on)",
+    )
+    r.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding (default: the model's own; 'neural-gaffer' for the released "
+        "checkpoint, 'default' for gaffer-tiny)",
+    )
     r.add_argument("--lpips-backbone", type=Path, help="torchvision AlexNet weights (std LPIPS)")
 
     d = sub.add_parser("render", help="render a field at the poses of a split")
@@ -210,40 +256,23 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _load_diffusion(args: argparse.Namespace) -> Any:
-    from gaffer_diffusion import RelightPipeline, RuntimeConfig
+    """The relighting model (`--checkpoint`, else gaffer-tiny, or the random smoke model)."""
+    from gaffer_nerf.guidance.model import load_relighting_model
 
-    if args.diffusion_preset == "tiny":
-        from gaffer_diffusion.testing import tiny_model
-
-        logger.warning("using a RANDOM tiny diffusion model: the relighting is meaningless")
-        model = tiny_model()
-    elif args.checkpoint is not None:
-        from gaffer_diffusion.loading import MANIFEST_NAME, load_authors_release, load_pretrained
-
-        if (args.checkpoint / MANIFEST_NAME).is_file():
-            model = load_pretrained(args.checkpoint).model
-        elif args.base_model is None:
-            raise ConfigError(
-                f"`--checkpoint` {args.checkpoint} is not a gaffer-diffusion folder, so it is taken "
-                "as the authors' release, which needs `--base-model DIR` (Zero-1-to-3 XL)."
-            )
-        else:
-            model = load_authors_release(args.checkpoint, args.base_model).model
-    else:
-        raise ConfigError(
-            "Pass `--checkpoint CKPT` (or `--diffusion-preset tiny` for a smoke test)."
-        )
-    dtype = "float16" if args.device.startswith("cuda") else "float32"
-    return RelightPipeline(model, RuntimeConfig(device=args.device, dtype=dtype))
+    return load_relighting_model(
+        args.checkpoint, args.base_model, smoke=args.diffusion_preset == "tiny"
+    )
 
 
-def _relight(args: argparse.Namespace) -> int:
-    from gaffer_envmap import read_envmap
-    from gaffer_nerf.evaluate import write_images
-    from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss
-    from gaffer_nerf.relight import relight_field
-
+def _relight_config(args: argparse.Namespace) -> Any:
+    """The preset with the command line's overrides (validated: a bad flag fails here, early)."""
     cfg = relight_preset(args.preset, args.ablation)
+    for flag, value in (
+        ("--stage1-iterations", args.stage1_iterations),
+        ("--stage2-iterations", args.stage2_iterations),
+    ):
+        if value is not None and value < 1:
+            raise ConfigError(f"`{flag}` is {value}; expected an int >= 1 (leave it out: preset).")
     if cfg.stage1 is not None and args.stage1_iterations is not None:
         cfg = dataclasses.replace(
             cfg, stage1=dataclasses.replace(cfg.stage1, iterations=args.stage1_iterations)
@@ -253,26 +282,107 @@ def _relight(args: argparse.Namespace) -> int:
         if args.stage2_iterations is not None:
             s2 = dataclasses.replace(s2, iterations=args.stage2_iterations)
         cfg = dataclasses.replace(cfg, stage2=s2)
-    if args.steps is not None:
-        cfg = dataclasses.replace(
-            cfg, diffusion=dataclasses.replace(cfg.diffusion, num_inference_steps=args.steps)
+    overrides = {
+        "num_inference_steps": args.steps,
+        "guidance_scale": args.guidance,
+        "average_samples": args.average_samples,
+        "mirror_average": args.mirror_average,
+        "compat": args.compat,
+    }
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if given:  # DiffusionSamplingConfig refuses bad values naming the flag
+        cfg = dataclasses.replace(cfg, diffusion=dataclasses.replace(cfg.diffusion, **given))
+    return cfg
+
+
+def _target_envmap(args: argparse.Namespace, scene: MultiViewScene) -> Any:
+    """`--envmap FILE|NAME` or lighting `--target-lighting` of the scene, sanitized by `--sanitize`."""
+    from gaffer_envmap import read_envmap
+    from gaffer_envmap.errors import NonFiniteError
+
+    try:
+        if args.envmap is not None:
+            if args.target_lighting is not None:
+                raise ConfigError(
+                    "Pass either `--envmap FILE|NAME` or `--target-lighting K`, not both."
+                )
+            return read_envmap(_envmap_path(args.envmap), sanitize=args.sanitize)
+        if args.target_lighting is not None:
+            if not 0 <= args.target_lighting < len(scene.lightings):
+                raise ConfigError(
+                    f"`--target-lighting` is {args.target_lighting}; {scene.root} has lightings "
+                    f"0..{len(scene.lightings) - 1}."
+                )
+            return load_lighting_envmap(
+                scene.lighting(args.target_lighting), args.envmaps, sanitize=args.sanitize
+            )
+    except NonFiniteError as exc:
+        what = str(exc).split(" Pass `sanitize=")[0]  # the API hint, said as the flag below
+        raise ConfigError(
+            f"{what} Pass `--sanitize zero` (or `clamp`) to repair the map (`--sanitize` "
+            f"{args.sanitize} refused it)."
+        ) from exc
+    raise ConfigError("Pass `--target-lighting K` (with `--envmaps DIR`) or `--envmap FILE`.")
+
+
+def _envmap_path(text: str) -> Path:
+    """A file, else a bundled HDRI name (`gaffer_envmap.bundled_hdris`)."""
+    from gaffer_envmap.bundled import bundled_hdris
+
+    path = Path(text).expanduser()
+    if path.is_file():
+        return path
+    bundled = bundled_hdris()
+    if text in bundled:
+        return bundled[text]
+    raise ConfigError(
+        f"`--envmap` {text!r} is neither a file nor a bundled HDRI; pass an .exr/.hdr path or one "
+        f"of {sorted(bundled)}."
+    )
+
+
+def _relight(args: argparse.Namespace) -> int:
+    from gaffer_diffusion import RelightPipeline, RuntimeConfig
+    from gaffer_nerf.evaluate import write_images
+    from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss
+    from gaffer_nerf.relight import relight_field
+
+    cfg = _relight_config(args)
+    if args.diffusion_preset == "tiny" and args.checkpoint is not None:
+        raise ConfigError(
+            "`--diffusion-preset tiny` is a random smoke model; drop it or `--checkpoint`."
         )
     scene = read_gaffer_data_object(args.data, lighting_index=args.input_lighting)
-    if args.envmap is not None:
-        env = read_envmap(args.envmap)
-    elif args.target_lighting is not None:
-        env = load_lighting_envmap(scene.lighting(args.target_lighting), args.envmaps)
-    else:
-        raise ConfigError("Pass `--target-lighting K` (with `--envmaps DIR`) or `--envmap FILE`.")
+    env = _target_envmap(args, scene)
     field = load_field(args.field, device=args.device)
-    guide = DiffusionGuide(_load_diffusion(args), cfg.diffusion)
+    loaded = _load_diffusion(args)
+    dtype = "float16" if args.device.startswith("cuda") else "float32"
+    pipe = RelightPipeline(loaded.model, RuntimeConfig(device=args.device, dtype=dtype))
+    guide = DiffusionGuide(pipe, cfg.diffusion, loaded.suggested)
+    s = guide.sampling
+    whose = "flags over the model's suggestion" if _sampling_overridden(args) else "the model's own"
+    print(  # the one line that says which model and which sampling
+        f"relight with {loaded.name}: {s.num_inference_steps} DDIM "
+        f"step{'' if s.num_inference_steps == 1 else 's'}, guidance "
+        f"{s.guidance_scale:g}, {s.average_samples} sample(s), mirror average "
+        f"{'on' if s.mirror_average else 'off'}, {s.compat!r} encoding ({whose})"
+    )
     perceptual = load_perceptual_loss(args.lpips_backbone, device=args.device)
     res = relight_field(
         field, scene.train, env, guide, cfg, perceptual, progress=not args.no_progress
     )
     save_field(res.field, args.out)
     (args.out / "relight_report.json").write_text(
-        json.dumps(_jsonable({"config": cfg, "report": res.report}), indent=2)
+        json.dumps(
+            _jsonable(
+                {
+                    "config": dataclasses.replace(cfg, diffusion=guide.sampling),
+                    "model": {"name": loaded.name, "source": str(loaded.source)},
+                    "report": res.report,
+                }
+            ),
+            indent=2,
+        )
     )
     if res.relit_views is not None:
         names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
@@ -284,6 +394,13 @@ def _relight(args: argparse.Namespace) -> int:
         f"total {r.total_seconds:.1f} s -> {args.out}"
     )
     return 0
+
+
+def _sampling_overridden(args: argparse.Namespace) -> bool:
+    return any(
+        v is not None
+        for v in (args.steps, args.guidance, args.average_samples, args.mirror_average, args.compat)
+    )
 
 
 def _render(args: argparse.Namespace) -> int:

@@ -306,35 +306,144 @@ class FitConfig:
             raise ConfigError(f"`betas` {self.betas} must lie in [0, 1).")
 
 
+CompatName = Literal["neural-gaffer", "default"]
+"""gaffer-envmap lighting encoding: the released checkpoint's ("neural-gaffer") or gaffer-envmap's."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ModelSampling:
+    """A relighting model's own suggested sampling: what it was evaluated with.
+
+    `DiffusionSamplingConfig` fields left at None take these values (`DiffusionSamplingConfig.resolved`),
+    so every path that samples the model (Stage 1, Stage 2 guidance, SDS) uses the model's setting
+    unless the user overrides it. `gaffer_nerf.guidance.suggested_sampling` gives a model's.
+
+    Attributes:
+        num_inference_steps: DDIM steps of the full schedule.
+        guidance_scale: classifier-free guidance scale (1.0: no unconditional branch).
+        average_samples: samples averaged per output (`SamplingConfig.average_samples`).
+        mirror_average: also relight the mirrored input and average (`SamplingConfig.mirror_average`).
+        compat: the lighting encoding the model was trained with.
+        latent_mode: conditioning latents from the VAE posterior "mode" or a "sample".
+        source: where the setting comes from, for logs and reports.
+    """
+
+    num_inference_steps: int
+    guidance_scale: float
+    average_samples: int = 1
+    mirror_average: bool = False
+    compat: CompatName = "neural-gaffer"
+    latent_mode: Literal["mode", "sample"] = "mode"
+    source: str = ""
+
+    def describe(self) -> str:
+        """One line, e.g. "1 DDIM step, guidance 1, mirror average, 'default' encoding"."""
+        steps = self.num_inference_steps
+        parts = [
+            f"{steps} DDIM step{'s' if steps != 1 else ''}",
+            f"guidance {self.guidance_scale:g}",
+        ]
+        if self.average_samples > 1:
+            parts.append(f"mean of {self.average_samples} samples")
+        if self.mirror_average:
+            parts.append("mirror average")
+        parts.append(f"{self.compat!r} encoding")
+        parts.append(f"latent {self.latent_mode}")
+        return ", ".join(parts)
+
+
+PAPER_SAMPLING = ModelSampling(
+    num_inference_steps=50,
+    guidance_scale=3.0,
+    compat="neural-gaffer",
+    latent_mode="sample",
+    source="the paper's settings (the model suggests none)",
+)
+"""The paper's sampling (official implementation §2): for models without a suggestion of their own.
+The posterior "sample" is the authors' inference (gaffer-diffusion relight does the same)."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class DiffusionSamplingConfig:
     """How the diffusion model is called from the relighting stages (official implementation §2).
 
+    None means "the model's own suggestion" (`ModelSampling`; gaffer-tiny: 1 step, guidance 1,
+    mirror average, "default" encoding; a model without one: the paper's 50 steps, guidance 3).
+
     Attributes:
-        num_inference_steps: DDIM steps of the full schedule (50); Stage 2 runs the ones below t*.
-        guidance_scale: classifier-free guidance scale (3.0).
+        num_inference_steps: DDIM steps of the full schedule; Stage 2 runs the ones below t*.
+        guidance_scale: classifier-free guidance scale.
+        average_samples: samples averaged per relit view / guidance target.
+        mirror_average: also relight the mirrored view under the mirrored lighting, flip back and
+            average (Stage 1 targets, Stage 2 targets and the SDS gradient).
+        latent_mode: conditioning latents from the VAE posterior "mode" or a "sample".
         batch_size: views relit per pipeline call in Stage 1.
         compat: lighting encoding, "neural-gaffer" for the released checkpoint or "default".
         seed: base seed; view i uses `seed + i`.
     """
 
-    num_inference_steps: int = 50
-    guidance_scale: float = 3.0
+    num_inference_steps: int | None = None
+    guidance_scale: float | None = None
+    average_samples: int | None = None
+    mirror_average: bool | None = None
+    latent_mode: Literal["mode", "sample"] | None = None
     batch_size: int = 8
-    compat: Literal["neural-gaffer", "default"] = "neural-gaffer"
+    compat: CompatName | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if not 1 <= self.num_inference_steps <= 1000 or self.batch_size < 1:
+        steps = self.num_inference_steps
+        if steps is not None and not (isinstance(steps, int) and 1 <= steps <= 1000):
             raise ConfigError(
-                f"`num_inference_steps`={self.num_inference_steps} must be in [1, 1000] and "
-                f"`batch_size`={self.batch_size} >= 1."
+                f"`num_inference_steps` (--steps) is {steps!r}; expected an int in [1, 1000]."
             )
-        _non_negative("guidance_scale", self.guidance_scale)
-        if self.compat not in ("neural-gaffer", "default"):
+        if not isinstance(self.batch_size, int) or self.batch_size < 1:
+            raise ConfigError(f"`batch_size` is {self.batch_size!r}; expected an int >= 1.")
+        g = self.guidance_scale
+        if g is not None and not (isinstance(g, int | float) and math.isfinite(g) and g >= 0):
             raise ConfigError(
-                f"`compat` is {self.compat!r}; expected 'neural-gaffer' or 'default'."
+                f"`guidance_scale` (--guidance) is {g!r}; expected a finite value >= 0 (paper: 3)."
             )
+        avg = self.average_samples
+        if avg is not None and not (isinstance(avg, int) and avg >= 1):
+            raise ConfigError(
+                f"`average_samples` (--average-samples) is {avg!r}; expected an int >= 1."
+            )
+        if self.compat is not None and self.compat not in ("neural-gaffer", "default"):
+            raise ConfigError(
+                f"`compat` (--compat) is {self.compat!r}; expected 'neural-gaffer' or 'default'."
+            )
+        if self.latent_mode is not None and self.latent_mode not in ("mode", "sample"):
+            raise ConfigError(
+                f"`latent_mode` (--latent-mode) is {self.latent_mode!r}; expected 'mode' or 'sample'."
+            )
+
+    def resolved(self, suggested: ModelSampling) -> "DiffusionSamplingConfig":
+        """This config with every None replaced by the model's suggestion (`suggested`).
+
+        Example:
+            >>> DiffusionSamplingConfig(guidance_scale=2.0).resolved(PAPER_SAMPLING).num_inference_steps
+            50
+        """
+
+        def pick(mine: object, theirs: object) -> object:
+            return theirs if mine is None else mine
+
+        return replace(
+            self,
+            num_inference_steps=pick(self.num_inference_steps, suggested.num_inference_steps),
+            guidance_scale=pick(self.guidance_scale, suggested.guidance_scale),
+            average_samples=pick(self.average_samples, suggested.average_samples),
+            mirror_average=pick(self.mirror_average, suggested.mirror_average),
+            # an explicit encoding brings its latent mode (gaffer-diffusion relight's rule)
+            latent_mode=pick(
+                self.latent_mode,
+                suggested.latent_mode
+                if self.compat is None
+                else ("sample" if self.compat == "neural-gaffer" else "mode"),
+            ),
+            compat=pick(self.compat, suggested.compat),
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -387,7 +496,8 @@ class Stage2Config:
         lr_gamma: every step multiplies all learning rates by this (0.1^(1/200)).
         betas: Adam betas (0.9, 0.99).
         sds_t_range: SDS timesteps are drawn uniformly from this fraction range (0.02, 0.98).
-        sds_guidance_scale: CFG scale of the SDS baseline (3.0).
+        sds_guidance_scale: CFG scale of the SDS baseline; None: the model's own guidance scale
+            (`DiffusionSamplingConfig.guidance_scale`, the paper's 3 for the released checkpoint).
         sds_weight: scale of the SDS gradient (1.0).
         encode_mode: VAE posterior "mode" (deterministic) or "sample" for the rendered view.
     """
@@ -405,7 +515,7 @@ class Stage2Config:
     lr_gamma: float = 0.1 ** (1.0 / 200.0)
     betas: tuple[float, float] = (0.9, 0.99)
     sds_t_range: tuple[float, float] = (0.02, 0.98)
-    sds_guidance_scale: float = 3.0
+    sds_guidance_scale: float | None = None
     sds_weight: float = 1.0
     encode_mode: Literal["mode", "sample"] = "mode"
 
@@ -425,8 +535,10 @@ class Stage2Config:
         lo, hi = self.sds_t_range
         if not 0 < lo <= hi < 1:
             raise ConfigError(f"`sds_t_range` {self.sds_t_range} must satisfy 0 < lo <= hi < 1.")
-        for name in ("l1_weight", "perceptual_weight", "image_tv_weight", "sds_guidance_scale"):
+        for name in ("l1_weight", "perceptual_weight", "image_tv_weight"):
             _non_negative(name, getattr(self, name))
+        if self.sds_guidance_scale is not None:
+            _non_negative("sds_guidance_scale", self.sds_guidance_scale)
         for name in ("lr_grid", "lr_network", "lr_gamma", "sds_weight"):
             _positive(name, getattr(self, name))
         if self.encode_mode not in ("mode", "sample"):
@@ -536,7 +648,7 @@ def relight_preset(name: PresetName, ablation: Ablation = "full") -> RelightConf
             return RelightConfig(
                 stage1=Stage1Config(iterations=100, batch_rays=1024, lr_grid=0.05, lr_network=3e-3),
                 stage2=Stage2Config(iterations=6, lr_gamma=0.1 ** (1.0 / 20.0)),
-                diffusion=DiffusionSamplingConfig(num_inference_steps=10, batch_size=4),
+                diffusion=DiffusionSamplingConfig(batch_size=4),  # sampling: the model's own
             ).with_ablation(ablation)
         case _:
             raise ConfigError(f"`name` is {name!r}; expected 'paper' or 'tiny'.")

@@ -12,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from gaffer_envmap import AugmentSpec, EnvironmentMap, read_envmap
+from gaffer_envmap.sanitize import SanitizePolicy
 from gaffer_nerf.data.transforms import LightingInfo, MultiViewScene, read_transforms_folder
 from gaffer_nerf.errors import DatasetNotFoundError
 
@@ -52,23 +53,41 @@ def read_gaffer_data_object(
 
 
 def load_lighting_envmap(
-    info: LightingInfo, envmap_dir: str | Path | None = None
+    info: LightingInfo,
+    envmap_dir: str | Path | None = None,
+    *,
+    sanitize: SanitizePolicy = "raise",
 ) -> EnvironmentMap:
     """The world-frame environment map of a lighting, with its flip / yaw augmentation applied.
 
-    Looks in `envmap_dir` for `<envmap>.exr` / `.hdr` first, then at `info.source`.
+    Looks in `envmap_dir` for `<envmap>.exr` / `.hdr` first, then at `info.source`, then among the
+    HDRIs bundled with gaffer-envmap (`gaffer_envmap.bundled_hdris`, by name), the pool gaffer-data
+    renders with by default.
+
+    Args:
+        info: the lighting (env map name, source, augmentation).
+        envmap_dir: a folder holding the pool's maps.
+        sanitize: NaN/Inf/negative pixels (`gaffer_envmap.read_envmap`): "raise" (default; sets
+            the tiny negatives of lossy compression, which 7 of the 8 bundled HDRIs hold, to 0 and
+            refuses anything else), "strict", "zero" or "clamp" (CLI: `--sanitize`, default zero).
 
     Raises:
-        DatasetNotFoundError: when the map is in neither place (the message lists both).
+        DatasetNotFoundError: when the map is in none of these places (the message lists them).
+        gaffer_envmap.errors.NonFiniteError: bad pixels with `sanitize="raise"`.
     """
+    from gaffer_envmap.bundled import bundled_hdris
+
     candidates: list[Path] = []
     if envmap_dir is not None:
         candidates += [Path(envmap_dir) / f"{info.envmap}{s}" for s in (".exr", ".hdr")]
     if info.source:
         candidates.append(Path(info.source))
+    bundled = bundled_hdris().get(info.envmap)
+    if bundled is not None:
+        candidates.append(bundled)
     for path in candidates:
         if path.is_file():
-            env = read_envmap(path)
+            env = read_envmap(path, sanitize=sanitize)
             spec = AugmentSpec(flip=info.flip, yaw_step=info.yaw_step, num_steps=info.num_steps)
             return spec.apply(env)
     raise DatasetNotFoundError(

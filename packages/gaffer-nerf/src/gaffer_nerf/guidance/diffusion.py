@@ -1,7 +1,10 @@
 """The relighting diffusion model as a prior for 3D: relit views (Stage 1), guidance targets (Stage 2), SDS.
 
 Built on gaffer-diffusion's public inference API (`RelightPipeline`, `make_scheduler`,
-`EncodedConditions`, `lighting_from_envmap`). The denoising loop of `denoise_from` is the pipeline's
+`EncodedConditions`, `lighting_from_envmap`). Every path that samples the model (Stage 1's relit views,
+Stage 2's targets, SDS) takes its steps, guidance, sample averaging, mirror averaging, encoding and
+latent mode from one resolved `DiffusionSamplingConfig`: the user's values, else the model's own
+suggestion (`gaffer_nerf.guidance.model.suggested_sampling`). The denoising loop of `denoise_from` is the pipeline's
 (same UNet input `[z_t, E(x), E(E_H), E(E_L)]`, same CFG with the CLIP embedding and the three
 conditioning latents zeroed in the unconditional branch), started at an intermediate noise level t*
 instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started from pure noise it equals
@@ -26,8 +29,8 @@ from gaffer_diffusion import (
     lighting_from_envmap,
     make_scheduler,
 )
-from gaffer_nerf.configs import DiffusionSamplingConfig, Stage2Config
-from gaffer_nerf.errors import ShapeError
+from gaffer_nerf.configs import DiffusionSamplingConfig, ModelSampling, Stage2Config
+from gaffer_nerf.errors import ConfigError, ShapeError
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -39,10 +42,13 @@ class ViewConditions:
     Attributes:
         lighting: `[V, 3, R, R]` camera-frame LDR/HDR maps of the target lighting.
         encoded: the VAE latents of each input view and its maps, and the CLIP embeddings.
+        mirrored: the same of every view flipped left-right under the lighting mirrored in camera x
+            (`DiffusionSamplingConfig.mirror_average`), else None.
     """
 
     lighting: LightingMaps
     encoded: EncodedConditions
+    mirrored: EncodedConditions | None = None
 
     @property
     def num_views(self) -> int:
@@ -81,14 +87,30 @@ class DiffusionGuide:
     """The diffusion model, wrapped for the 3D relighting stages.
 
     Args:
-        pipeline: a `RelightPipeline` (real weights, or `gaffer_diffusion.testing.tiny_model()`).
-        sampling: steps, guidance scale, batch size, lighting encoding and seeds.
+        pipeline: a `RelightPipeline` (real weights, or the random `guidance.model.smoke_model()`).
+        sampling: steps, guidance scale, averaging, encoding, batch size and seeds; None fields
+            take the model's suggestion.
+        suggested: the model's own sampling; None: `suggested_sampling(pipeline.model)`.
+
+    Attributes:
+        requested: `sampling` as given.
+        suggested: the model's suggestion.
+        sampling: the resolved setting every path uses (no None left).
     """
 
-    def __init__(self, pipeline: RelightPipeline, sampling: DiffusionSamplingConfig) -> None:
+    def __init__(
+        self,
+        pipeline: RelightPipeline,
+        sampling: DiffusionSamplingConfig | None = None,
+        suggested: ModelSampling | None = None,
+    ) -> None:
+        from gaffer_nerf.guidance.model import suggested_sampling
+
         self.pipeline = pipeline
-        self.sampling = sampling
         self.model = pipeline.model
+        self.requested = sampling or DiffusionSamplingConfig()
+        self.suggested = suggested or suggested_sampling(self.model)
+        self.sampling = self.requested.resolved(self.suggested)
         for module in (self.model.unet, self.model.vae, self.model.image_encoder):
             module.requires_grad_(False)
 
@@ -112,54 +134,113 @@ class DiffusionGuide:
             envmap, w2c_blender, size=self.resolution, compat=self.sampling.compat
         )
 
+    def sampling_config(self) -> SamplingConfig:
+        """The resolved setting as gaffer-diffusion's `SamplingConfig` (what Stage 1 samples with).
+
+        `mirror_average` is done here (on encoded conditions); `RelightPipeline.sample` ignores it.
+        The schedule's spacing (where sampling starts) is the model's own (`ModelConfig.scheduler`).
+        """
+        s = self.sampling
+        return SamplingConfig(
+            num_inference_steps=int(s.num_inference_steps),  # type: ignore[arg-type]
+            guidance_scale=float(s.guidance_scale),  # type: ignore[arg-type]
+            average_samples=int(s.average_samples),  # type: ignore[arg-type]
+            mirror_average=bool(s.mirror_average),
+            latent_mode=s.latent_mode or "mode",
+        )
+
     @torch.no_grad()
     def encode_views(
         self, images: Float[Tensor, "V 3 H W"], lighting: LightingMaps
     ) -> ViewConditions:
-        """Encode the input views with the target lighting once (batched by `sampling.batch_size`)."""
+        """Encode the input views with the target lighting once (batched by `sampling.batch_size`).
+
+        With `mirror_average` the mirrored views are encoded too. With `latent_mode="sample"` view
+        i draws its posterior noise from seed `sampling.seed + i` (the mirror from the same seed).
+        """
+        from gaffer_envmap.augment import mirror_camera_x
+
         x = self.to_model_resolution(images).clamp(0, 1)
-        parts = []
-        b = self.sampling.batch_size
-        for s in range(0, x.shape[0], b):
-            cond = RelightingConditions(
-                image=x[s : s + b],
-                lighting=LightingMaps(ldr=lighting.ldr[s : s + b], hdr=lighting.hdr[s : s + b]),
+        mode = self.sampling.latent_mode or "mode"
+
+        def encode_all(x: Tensor, ldr: Tensor, hdr: Tensor) -> EncodedConditions:
+            parts = []
+            b = self.sampling.batch_size
+            for s in range(0, x.shape[0], b):
+                cond = RelightingConditions(
+                    image=x[s : s + b],
+                    lighting=LightingMaps(ldr=ldr[s : s + b], hdr=hdr[s : s + b]),
+                )
+                gens = None
+                if mode == "sample":
+                    seeds = range(s, min(s + b, x.shape[0]))
+                    gens = [torch.Generator().manual_seed(self.sampling.seed + i) for i in seeds]
+                parts.append(self.pipeline.encode(cond, latent_mode=mode, generator=gens))
+            return EncodedConditions.cat(parts)
+
+        enc = encode_all(x, lighting.ldr, lighting.hdr)
+        mirrored = None
+        if self.sampling.mirror_average:
+            ldr, hdr = mirror_camera_x(lighting.ldr), mirror_camera_x(lighting.hdr)
+            mirrored = encode_all(x.flip(-1), ldr, hdr)
+        return ViewConditions(lighting=lighting, encoded=enc, mirrored=mirrored)
+
+    def _mirrored(self, mirrored: EncodedConditions | None, where: str) -> EncodedConditions | None:
+        if not self.sampling.mirror_average:
+            return None
+        if mirrored is None:
+            raise ConfigError(
+                f"{where}: `mirror_average` is on but no mirrored conditions were given; encode the "
+                "views with `DiffusionGuide.encode_views` (it encodes the mirrors) and pass "
+                "`ViewConditions.mirrored`, or set `DiffusionSamplingConfig(mirror_average=False)`."
             )
-            parts.append(self.pipeline.encode(cond))
-        enc = EncodedConditions.cat(parts)
-        return ViewConditions(lighting=lighting, encoded=enc)
+        return mirrored
 
     @torch.no_grad()
     def relight_views(
         self, conditions: ViewConditions, *, callback: ProgressCallback | None = None
     ) -> Float[Tensor, "V 3 R R"]:
-        """Stage 1's targets: every view relit from pure noise (50 DDIM steps, CFG 3 by default).
+        """Stage 1's targets: every view relit from pure noise with the resolved sampling.
 
-        View i uses seed `sampling.seed + i`, so results do not depend on the batch size.
+        View i uses seed `sampling.seed + i` (its mirror the same), so results do not depend on the
+        batch size. With `mirror_average` the mirrored view's result is flipped back and averaged.
         """
-        cfg = SamplingConfig(
-            num_inference_steps=self.sampling.num_inference_steps,
-            guidance_scale=self.sampling.guidance_scale,
-        )
+        cfg = self.sampling_config()
+        mirrored = self._mirrored(conditions.mirrored, "relight_views")
         out = []
         b, v = self.sampling.batch_size, conditions.num_views
         for s in range(0, v, b):
             idx = list(range(s, min(s + b, v)))
-            res = self.pipeline.sample(
-                conditions.encoded.select(idx), cfg, seeds=[self.sampling.seed + i for i in idx]
-            )
-            out.append(res.images.float().cpu())
+            seeds = [self.sampling.seed + i for i in idx]
+            enc = conditions.encoded.select(idx)
+            if mirrored is not None:  # one batch of 2B, as RelightPipeline's mirror mean
+                enc = EncodedConditions.cat([enc, mirrored.select(idx)])
+                seeds = [*seeds, *seeds]
+            images = self.pipeline.sample(enc, cfg, seeds=seeds).images.float().cpu()
+            if mirrored is not None:
+                n = len(idx)
+                images = (images[:n] + images[n:].flip(-1)) / 2.0
+            out.append(images)
             if callback is not None:
                 callback(idx[-1] + 1, v)
         return torch.cat(out)
 
     def _timesteps(self, t_frac: float) -> tuple[object, Tensor]:
+        """The scheduler and the DDIM timesteps Stage 2 runs from t*.
+
+        The steps of the model's `num_inference_steps` schedule at or below t*; when it has none
+        there (a few-step model such as gaffer-tiny, whose one step is at t = 999), one DDIM step
+        from t* itself (never from above t*, which would discard the render).
+        """
         sched = make_scheduler("ddim", self.model.config.scheduler)
         sched.set_timesteps(self.sampling.num_inference_steps, device=self.pipeline.device)
         ts = sched.timesteps
         limit = t_frac * sched.config.num_train_timesteps
         below = ts[ts <= limit]
-        return sched, below if below.numel() > 0 else ts[-1:]
+        if below.numel() > 0:
+            return sched, below
+        start = max(1, round(limit))  # every schedule step lies above t*
+        return sched, torch.tensor([start], dtype=ts.dtype, device=ts.device)
 
     def _eps(self, z: Tensor, t: Tensor, enc: EncodedConditions, guidance: float) -> Tensor:
         """CFG noise prediction, as `RelightPipeline`: uncond zeroes CLIP and the 3 latents."""
@@ -209,34 +290,51 @@ class DiffusionGuide:
         generator: torch.Generator | None = None,
         encode_mode: str = "mode",
         noise: Tensor | None = None,
+        mirrored: EncodedConditions | None = None,
     ) -> Float[Tensor, "B 3 R R"]:
         """Stage 2's target x_relit(t*): encode, noise to t*, DDIM-denoise with CFG, decode (Eq. 3).
+
+        With `average_samples` K the mean of K noises; with `mirror_average` also the mirrored
+        render under `mirrored` (same noise), flipped back and averaged.
 
         Args:
             images: rendered views in [0, 1] at the model resolution.
             encoded: their views' conditioning (input photo, target lighting).
-            t_frac: t* as a fraction of the training timesteps; the DDIM steps of the
-                `num_inference_steps` schedule at or below it are run.
+            t_frac: t* as a fraction of the training timesteps (see `_timesteps`).
             generator: RNG for the noise (CPU generator).
             encode_mode: VAE posterior "mode" or "sample".
-            noise: explicit `[B, 4, h, w]` noise instead of drawing it.
+            noise: explicit `[B * K, 4, h, w]` noise (item-major) instead of drawing it.
+            mirrored: the views' mirrored conditioning (`ViewConditions.mirrored`); needed with
+                `mirror_average`.
 
         Returns:
             The denoised images in [0, 1], float32.
         """
         if images.ndim != 4 or images.shape[1] != 3:
             raise ShapeError("images", tuple(images.shape), "[B, 3, R, R]")
-        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
+        mirror = self._mirrored(mirrored, "denoise_from")
+        b, k = images.shape[0], int(self.sampling.average_samples or 1)
+        dev, dt = self.pipeline.device, self.pipeline.dtype
+        enc = encoded.to(device=dev, dtype=dt).repeat_interleave(k)
+        x = images.repeat_interleave(k, dim=0)
+        if mirror is not None:
+            enc = EncodedConditions.cat([enc, mirror.to(device=dev, dtype=dt).repeat_interleave(k)])
+            x = torch.cat([x, x.flip(-1)])
         sched, ts = self._timesteps(t_frac)
-        z0 = self.encode_image(images, enc, mode=encode_mode, generator=generator)
+        z0 = self.encode_image(x, enc, mode=encode_mode, generator=generator)
         if noise is None:
-            noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32)
+            noise = torch.randn((b * k, *z0.shape[1:]), generator=generator, dtype=torch.float32)
+        if mirror is not None:
+            noise = torch.cat([noise, noise])
         noise = noise.to(device=z0.device, dtype=z0.dtype)
         z = sched.add_noise(z0, noise, ts[:1].repeat(z0.shape[0]))  # type: ignore[attr-defined]
-        return self._ddim(sched, z, ts, enc)
+        out = self._ddim(sched, z, ts, enc)
+        if mirror is not None:
+            out = (out[: b * k] + out[b * k :].flip(-1)) / 2.0
+        return out.unflatten(0, (b, k)).mean(dim=1)
 
     def _ddim(self, sched: object, z: Tensor, ts: Tensor, enc: EncodedConditions) -> Tensor:
-        g = self.sampling.guidance_scale
+        g = float(self.sampling.guidance_scale)  # type: ignore[arg-type]
         for t in ts:
             eps = self._eps(sched.scale_model_input(z, t), t, enc, g)  # type: ignore[attr-defined]
             z = sched.step(eps, t, z, eta=0.0).prev_sample  # type: ignore[attr-defined]
@@ -263,12 +361,33 @@ class DiffusionGuide:
         config: Stage2Config,
         *,
         generator: torch.Generator | None = None,
+        mirrored: EncodedConditions | None = None,
     ) -> Tensor:
         """Score distillation (DreamFusion): gradient w(t)(eps_hat - eps) on the latent, as a loss.
 
         loss = 0.5 || z_0 - sg(z_0 - g) ||^2 / B with g = weight (1 - alpha_bar_t)(eps_hat(z_t) - eps),
-        so d loss / d z_0 = g; it reaches the rendered image through the VAE encoder.
+        so d loss / d z_0 = g; it reaches the rendered image through the VAE encoder. The CFG scale
+        is `config.sds_guidance_scale`, else the model's (`sampling.guidance_scale`). With
+        `mirror_average` it is the mean of the loss of the view and of its mirror under `mirrored`.
         """
+        mirror = self._mirrored(mirrored, "sds_loss")
+        if mirror is not None:
+            a = self._sds_one(images, encoded, config, generator)
+            return 0.5 * (a + self._sds_one(images.flip(-1), mirror, config, generator))
+        return self._sds_one(images, encoded, config, generator)
+
+    def sds_guidance(self, config: Stage2Config) -> float:
+        """The CFG scale SDS uses: `config.sds_guidance_scale`, else the model's."""
+        g = config.sds_guidance_scale
+        return float(self.sampling.guidance_scale if g is None else g)  # type: ignore[arg-type]
+
+    def _sds_one(
+        self,
+        images: Tensor,
+        encoded: EncodedConditions,
+        config: Stage2Config,
+        generator: torch.Generator | None,
+    ) -> Tensor:
         enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
         sched = make_scheduler("ddim", self.model.config.scheduler)
         n_train = int(sched.config.num_train_timesteps)  # type: ignore[attr-defined]
@@ -279,7 +398,7 @@ class DiffusionGuide:
         noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32).to(z0)
         with torch.no_grad():
             z_t = sched.add_noise(z0.detach(), noise, t.repeat(z0.shape[0]))  # type: ignore[attr-defined]
-            pred = self._eps(z_t, t, enc, config.sds_guidance_scale)
+            pred = self._eps(z_t, t, enc, self.sds_guidance(config))
             alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)  # type: ignore[attr-defined]
             eps = _as_epsilon(pred, z_t, alpha_bar, self.model.config.scheduler.prediction_type)
             grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)

@@ -19,7 +19,7 @@ import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
 
-from gaffer_nerf.configs import RelightConfig
+from gaffer_nerf.configs import DiffusionSamplingConfig, RelightConfig
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ShapeError
 from gaffer_nerf.fields.tensorf import TensoRFVM
@@ -50,6 +50,8 @@ class RelightReport:
         perceptual_name: the perceptual network used in Stage 2 (None: unavailable / not used).
         perceptual_unavailable_reason: why there is none.
         total_seconds: everything above.
+        sampling: the resolved diffusion sampling every stage used (`DiffusionGuide.sampling`).
+        sampling_source: where its unset values came from (the model's suggestion, or the paper's).
     """
 
     cache_seconds: float
@@ -62,6 +64,8 @@ class RelightReport:
     perceptual_name: str | None
     perceptual_unavailable_reason: str | None
     total_seconds: float
+    sampling: DiffusionSamplingConfig | None = None
+    sampling_source: str = ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,7 +101,8 @@ def relight_field(
         train: the input-lighting training views and their cameras (the diffusion inputs).
         envmap: the target lighting, a `gaffer_envmap.EnvironmentMap` or `[He, We, 3]` radiance in
             Blender's world convention.
-        guide: the diffusion model and its sampling settings.
+        guide: the diffusion model and its sampling settings (`guide.sampling`, already resolved
+            against the model's suggestion; `config.diffusion` is not read here).
         config: stages, ablation, seeds.
         perceptual: Stage 2's perceptual term (`load_perceptual_loss()`; may be unavailable).
         relit_views: Stage 1 targets from an earlier run (same views, lighting and model) to reuse.
@@ -181,5 +186,7 @@ def relight_field(
             perceptual.unavailable_reason if used_perceptual else "not used (no guidance loss)"
         ),
         total_seconds=time.perf_counter() - t_all,
+        sampling=guide.sampling,
+        sampling_source=guide.suggested.source,
     )
     return RelightResult(field=out, relit_views=relit_views, report=report)

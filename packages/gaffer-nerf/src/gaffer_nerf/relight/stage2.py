@@ -2,8 +2,8 @@
 
 Each step renders one random training view in full (from the frozen-density cache, with gradients),
 and either
-- "guidance": encodes it, noises it to t* (0.4 -> 0.05, exponential), DDIM-denoises with CFG and that
-  view's conditioning, decodes, and applies w1 L1 + w2 perceptual between the render and the result; or
+- "guidance": encodes it, noises it to t* (0.4 -> 0.05, exponential), DDIM-denoises with the model's
+  sampling (`DiffusionGuide.sampling`: steps, CFG, mirror average) and that view's conditioning, decodes, and applies w1 L1 + w2 perceptual between the render and the result; or
 - "sds": backpropagates the score-distillation gradient through the VAE encoder (the baseline).
 All learning rates are multiplied by `lr_gamma` (0.1^(1/200)) after every step, as the authors do.
 """
@@ -77,18 +77,25 @@ def run_stage2(
         render = render_cached(field, cache, ids).T.reshape(1, 3, h, w)  # [1, 3, H, W]
         x = guide.to_model_resolution(render)  # [1, 3, R, R]
         enc = conditions.encoded.select([v])
+        mirrored = None if conditions.mirrored is None else conditions.mirrored.select([v])
         match config.loss:
             case "guidance":
                 ts = t_star(step, config.iterations, config)
                 stars.append(ts)
                 target = guide.denoise_from(
-                    x.detach(), enc, ts, generator=generator, encode_mode=config.encode_mode
+                    x.detach(),
+                    enc,
+                    ts,
+                    generator=generator,
+                    encode_mode=config.encode_mode,
+                    mirrored=mirrored,
                 ).to(x)
                 loss = config.l1_weight * F.l1_loss(x, target)
                 if config.perceptual_weight > 0 and perceptual.available:
                     loss = loss + config.perceptual_weight * perceptual(x, target)
             case "sds":
-                loss = guide.sds_loss(x, enc, config, generator=generator).to(x.device)
+                loss = guide.sds_loss(x, enc, config, generator=generator, mirrored=mirrored)
+                loss = loss.to(x.device)
         if config.image_tv_weight > 0:
             loss = loss + config.image_tv_weight * image_tv(x)
         if not bool(torch.isfinite(loss)):
