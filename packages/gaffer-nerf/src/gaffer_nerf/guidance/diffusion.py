@@ -14,6 +14,7 @@ instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started f
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 import torch.nn.functional as F
@@ -29,7 +30,7 @@ from gaffer_diffusion import (
     lighting_from_envmap,
     make_scheduler,
 )
-from gaffer_nerf.configs import DiffusionSamplingConfig, ModelSampling, Stage2Config
+from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, ModelSampling, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
 
 ProgressCallback = Callable[[int, int], None]
@@ -130,9 +131,8 @@ class DiffusionGuide:
 
     def lighting(self, envmap: object, w2c_blender: Float[Tensor, "V 3 4"]) -> LightingMaps:
         """Camera-frame LDR/HDR maps of `envmap` for every view (gaffer-envmap's `encode_lighting`)."""
-        return lighting_from_envmap(
-            envmap, w2c_blender, size=self.resolution, compat=self.sampling.compat
-        )
+        compat = cast(CompatName, self.sampling.compat)  # resolved: never None here
+        return lighting_from_envmap(envmap, w2c_blender, size=self.resolution, compat=compat)
 
     def sampling_config(self) -> SamplingConfig:
         """The resolved setting as gaffer-diffusion's `SamplingConfig` (what Stage 1 samples with).
