@@ -192,12 +192,14 @@ def _load_mesh(path: Path) -> Any:
     loaded = trimesh.load(str(path), force="scene", process=False)
     meshes = (
         [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
-        if hasattr(loaded, "dump")
+        if isinstance(loaded, trimesh.Scene)
         else []
     )
     if not meshes:
         raise ValueError("the file holds no triangle mesh")
     mesh = trimesh.util.concatenate(meshes)
+    if not isinstance(mesh, trimesh.Trimesh):  # concatenate of Trimesh parts is a Trimesh
+        raise ValueError("the file's meshes could not be joined into one triangle mesh")
     # glTF splits vertices along UV and normal seams; weld them so topology counts mean something.
     mesh.merge_vertices(merge_tex=True, merge_norm=True)
     texture_count = sum(
@@ -215,9 +217,10 @@ def _topology(vertices: np.ndarray, faces: np.ndarray) -> tuple[int, int]:
         import pymeshlab
     except ImportError as exc:
         raise missing_extra("pymeshlab", "filter") from exc
-    ms = pymeshlab.MeshSet()
+    # pymeshlab's C++ bindings ship no type stubs
+    ms = pymeshlab.MeshSet()  # pyright: ignore[reportAttributeAccessIssue]
     ms.add_mesh(
-        pymeshlab.Mesh(
+        pymeshlab.Mesh(  # pyright: ignore[reportAttributeAccessIssue]
             vertex_matrix=vertices.astype(np.float64), face_matrix=faces.astype(np.int32)
         )
     )

@@ -1,5 +1,9 @@
 """Blender scene construction for the worker (imports bpy: only ever loaded inside a worker process)."""
 
+# pyright: reportAttributeAccessIssue=false, reportMissingImports=false
+# (bpy and mathutils are C extension modules without type stubs: their attributes are made at run
+# time by Blender's RNA, so pyright cannot see them. Everything else here is checked.)
+
 import logging
 import math
 from pathlib import Path

@@ -392,14 +392,17 @@ def nerf_transforms(plan: ObjectPlan, split: str) -> dict[str, object]:
     for view in plan.views:
         if view.split != split:
             continue
-        if not view.lit and view.area is None:  # internal: RenderConfig needs one of them
+        if view.lit:
+            first_png = view.lit[0].png
+        elif view.area is not None:
+            first_png = view.area.png
+        else:  # internal: RenderConfig needs one of them
             raise RuntimeError(f"internal error: view {view.index} has no render")
         c2w = np.eye(4)
         c2w[:3] = np.linalg.inv(np.vstack([poses.w2c_blender[view.index], [0, 0, 0, 1]]))[:3]
         frames.append(
             {
-                "file_path": "./"
-                + (view.lit[0].png if view.lit else view.area.png).removesuffix(".png"),
+                "file_path": "./" + first_png.removesuffix(".png"),
                 "transform_matrix": c2w.tolist(),
                 "view_index": view.index,
                 "lit": [

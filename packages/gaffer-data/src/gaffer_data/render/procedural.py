@@ -10,6 +10,10 @@ to GLB so that renders of them are bit-identical across processes (imported mesh
 from Python in each process are not, by up to ~4e-3, through their vertex normals).
 """
 
+# pyright: reportAttributeAccessIssue=false, reportMissingImports=false
+# (bpy and mathutils are C extension modules without type stubs: their attributes are made at run
+# time by Blender's RNA, so pyright cannot see them. Everything else here is checked.)
+
 import argparse
 import colorsys
 import logging

@@ -34,7 +34,7 @@ def import_ray() -> ModuleType:
         MissingDependencyError: ray is not installed.
     """
     try:
-        import ray
+        import ray  # pyright: ignore[reportMissingImports]  # extra [ray], absent in `nox -s typecheck`
     except ImportError as exc:
         raise MissingDependencyError(
             "`--backend ray` needs `ray`, which is not installed. "

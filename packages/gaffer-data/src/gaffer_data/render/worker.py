@@ -8,6 +8,10 @@ exist (so a killed object resumes where it stopped), and reports progress on std
 with `GAFFER_EVENT ` followed by JSON. Exit codes: 0 done, 2 bad input, 3 bpy missing, 1 other errors.
 """
 
+# pyright: reportAttributeAccessIssue=false, reportMissingImports=false
+# (bpy and mathutils are C extension modules without type stubs: their attributes are made at run
+# time by Blender's RNA, so pyright cannot see them. Everything else here is checked.)
+
 import argparse
 import ctypes
 import json
