@@ -66,7 +66,7 @@ def spin_matrix_authors(spin_index: int, num_frames: int) -> Tensor:
 
 
 def spin_matrices_neural_gaffer(
-    spin_deg: "float | Tensor", count: int, device: torch.device
+    spin_deg: "float | int | Tensor", count: int, device: torch.device
 ) -> Tensor:
     """`[count, 3, 3]` right factors Rz(-D) for `spin_deg` D (scalar or `[count]`): frame k = D N / 360.
 

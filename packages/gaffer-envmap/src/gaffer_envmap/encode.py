@@ -126,7 +126,7 @@ def encode_lighting(
     *,
     size: int = 256,
     compat: CompatArg = "default",
-    spin_deg: "float | Tensor" = 0.0,
+    spin_deg: "float | int | Tensor" = 0.0,
     filter: Filter = "area",
     supersample: int = 2,
     quantize: bool = False,

@@ -123,7 +123,7 @@ def _camera_grid(height: int, width: int, ss: int, device_str: str) -> tuple[Ten
     )
 
 
-def _spin_matrix(spin_deg: "float | Tensor", count: int, device: torch.device) -> Tensor:
+def _spin_matrix(spin_deg: "float | int | Tensor", count: int, device: torch.device) -> Tensor:
     """`[count, 3, 3]` rotations about world +z by -spin (the lookup turns opposite to the light)."""
     ang = torch.as_tensor(spin_deg, dtype=torch.float64, device=device).reshape(-1)
     if ang.numel() == 1:
@@ -141,7 +141,7 @@ def padded_grid(
     width: int,
     src_height: int,
     ss: int = 1,
-    spin_deg: "float | Tensor" = 0.0,
+    spin_deg: "float | int | Tensor" = 0.0,
 ) -> Tensor:
     """`grid_sample` coordinates `[P, height*ss, width*ss, 2]` into a `_pad_periodic` source of
     `src_height` rows (Blender layout), align_corners=True.
@@ -237,7 +237,7 @@ def rotate_to_camera(
     filter: Filter = "area",
     supersample: int = 2,
     renormalize: bool = False,
-    spin_deg: "float | Tensor" = 0.0,
+    spin_deg: "float | int | Tensor" = 0.0,
     pairing: Pairing = "outer",
     device: "torch.device | str | None" = None,
 ) -> Tensor:
@@ -318,7 +318,7 @@ def rotate_channels_first(
     filter: Filter = "area",
     supersample: int = 2,
     renormalize: bool = False,
-    spin_deg: "float | Tensor" = 0.0,
+    spin_deg: "float | int | Tensor" = 0.0,
     pairing: Pairing = "outer",
 ) -> Tensor:
     """The work of `rotate_to_camera` on validated tensors: `src` `[M, He, We, 3]`, `rot` `[P, 3, 3]`.
@@ -348,7 +348,7 @@ def rotate_channels_first(
 
 
 def _exact_permutations(
-    out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float | Tensor", pairing: Pairing
+    out: Tensor, src: Tensor, rot: Tensor, spin_deg: "float | int | Tensor", pairing: Pairing
 ) -> Tensor:
     """Replace the output of every pose that maps the output grid exactly onto the source grid.
 
@@ -385,7 +385,7 @@ def _rotate_conservative_pairs(
     out_h: int,
     out_w: int,
     ss: int,
-    spin_deg: "float | Tensor",
+    spin_deg: "float | int | Tensor",
     pairing: Pairing,
 ) -> Tensor:
     """`filter="conservative"` for both pairings (outer pairs every map with every pose first)."""
