@@ -9,12 +9,17 @@ import pytest
 import torch
 
 from gaffer_nerf.checkpoint import load_field, save_field
-from gaffer_nerf.configs import EarlyStoppingConfig, GridSizingConfig, RankSelectionConfig
+from gaffer_nerf.configs import (
+    PAPER_RAYS_PER_CELL,
+    EarlyStoppingConfig,
+    GridSizingConfig,
+    RankSelectionConfig,
+)
 from gaffer_nerf.errors import CameraError, CheckpointError, ConfigError, NonFiniteError
 from gaffer_nerf.fields import EmptyAlphaMaskWarning, voxels_to_grid
 from gaffer_nerf.fit import choose_rank_rung, fit_tensorf, heldout_psnr
 from gaffer_nerf.rendering import render_rays_chunked
-from gaffer_nerf.sizing import choose_grid_sizing
+from gaffer_nerf.sizing import budget_side, choose_grid_sizing
 from gaffer_nerf.testing import orbit_cameras, quick_fit_config, scene_envmap, sphere_viewset
 
 
@@ -37,11 +42,20 @@ def test_footprint_sizing_and_cap() -> None:
     assert s.footprint == pytest.approx(2.5 / f, rel=1e-5) and s.voxel_size == pytest.approx(
         s.footprint
     )
-    cfg = quick_fit_config(sizing=GridSizingConfig(mode="footprint", max_resolution=300))
+    sizing = GridSizingConfig(mode="footprint", max_resolution=300, rays_per_cell=None)
+    cfg = quick_fit_config(sizing=sizing)
     grid = s.final_grid(box, cfg)
     assert grid[0] == math.ceil(2.0 / s.voxel_size) + 1  # ~71 for a 64 px capture, not 300
-    capped = quick_fit_config(sizing=GridSizingConfig(mode="footprint", max_resolution=20))
+    capped = quick_fit_config(
+        sizing=GridSizingConfig(mode="footprint", max_resolution=20, rays_per_cell=None)
+    )
     assert s.final_grid(box, capped) == (20, 20, 20)
+    # the iteration budget: 120 x 512 rays at the paper's 1365 rays per plane cell train ~6.7^3
+    budget = quick_fit_config(sizing=GridSizingConfig(mode="footprint", min_resolution=4))
+    assert budget_side(budget) == pytest.approx(math.sqrt(120 * 512 / PAPER_RAYS_PER_CELL))
+    assert s.final_grid(box, budget) == (6, 6, 6)  # voxels_to_grid(round(6.7**3)) on the box
+    longer = dataclasses.replace(budget, iterations=120 * 128)  # ~76 per axis: the footprint binds
+    assert s.final_grid(box, longer) == grid
     fixed = choose_grid_sizing(cams, box, GridSizingConfig())
     assert fixed.voxel_size is None and fixed.final_grid(box, cfg) == voxels_to_grid(24**3, box)
 

@@ -128,6 +128,10 @@ class TensoRFConfig:
             _non_negative(name, getattr(self, name))
 
 
+PAPER_RAYS_PER_CELL = 30_000 * 4096 / 300**2
+"""Rays per cell of a factor plane in the paper's fit: 30K iterations x 4096 rays on 300^2 (~1365)."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class GridSizingConfig:
     """How fine the final grid is ("model no more than the scene needs").
@@ -136,20 +140,30 @@ class GridSizingConfig:
         mode: "fixed": `FitConfig.final_voxels` over the (shrunk) box, as the paper (300^3);
             "footprint": voxel size = the finest camera's pixel footprint at the object's depth divided
             by `oversample`, so a 256 px capture never gets more voxels than its pixels can constrain.
+            The iteration budget caps it too (`rays_per_cell`).
         oversample: voxels per pixel footprint along one axis (1.0).
         max_resolution: cap on voxels per axis (300, the paper's).
         min_resolution: floor on voxels per axis (16).
+        rays_per_cell: "footprint" mode only: the fit's budget of `iterations x batch_rays` rays must
+            give each cell of an R x R factor plane at least this many rays, so the grid holds at
+            most R^3 voxels with R = sqrt(iterations x batch_rays / rays_per_cell): cells a short fit
+            never constrains only slow it down. The default is the paper's own ratio (30K x 4096 rays
+            on its 300^2 planes: 1365), so the paper's schedule keeps its 300^3; the tiny preset's
+            300 x 1024 rays give 15^3. None: no budget cap (the footprint alone).
     """
 
     mode: SizingMode = "fixed"
     oversample: float = 1.0
     max_resolution: int = 300
     min_resolution: int = 16
+    rays_per_cell: float | None = PAPER_RAYS_PER_CELL
 
     def __post_init__(self) -> None:
         if self.mode not in ("fixed", "footprint"):
             raise ConfigError(f"`mode` is {self.mode!r}; expected 'fixed' or 'footprint'.")
         _positive("oversample", self.oversample)
+        if self.rays_per_cell is not None:
+            _positive("rays_per_cell", self.rays_per_cell)
         if not 2 <= self.min_resolution <= self.max_resolution:
             raise ConfigError(
                 f"`min_resolution`={self.min_resolution}, `max_resolution`={self.max_resolution}: "
