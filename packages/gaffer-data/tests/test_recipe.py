@@ -51,3 +51,25 @@ def test_build_default_recipe(tmp_path: Path) -> None:
         assert (recipe.objects / "procedural" / name).stat().st_size == (
             again.objects / "procedural" / name
         ).stat().st_size
+
+
+def test_a_failed_procedural_build_leaves_no_partial_objects(tmp_path, monkeypatch):
+    # issue 17: a recipe stopped mid-build left 16 of 400 objects with no marker
+    import subprocess
+
+    import gaffer_data.recipes as recipes
+
+    def half_then_fail(cmd, **kwargs):
+        out = Path(cmd[cmd.index("--out") + 1])
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "procedural_000.glb").write_bytes(b"glTF")  # one object written, then a crash
+        return subprocess.CompletedProcess(cmd, 1, "", "Blender crashed")
+
+    monkeypatch.setattr(recipes.importlib.util, "find_spec", lambda name: object())
+    monkeypatch.setattr(recipes.subprocess, "run", half_then_fail)
+    from gaffer_data.errors import InputError
+
+    with pytest.raises(InputError, match="procedural objects failed"):
+        recipes.build_default_recipe(tmp_path, procedural=5, sample_meshes_too=False)
+    assert not (tmp_path / "objects" / "procedural").exists()
+    assert list((tmp_path / "objects").rglob("*.glb")) == []

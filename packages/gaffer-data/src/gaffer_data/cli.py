@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_data.errors import GafferDataError
+from gaffer_envmap.errors import GafferEnvmapError
 
 if TYPE_CHECKING:
     from gaffer_data.config import RenderConfig
@@ -30,6 +31,43 @@ def _common_config(args: argparse.Namespace) -> dict[str, object]:
         "world_map_resolution": args.world_map_resolution,
         "augment": AugmentConfig(flip=not args.no_flip, yaw_steps=args.yaw_steps),
     }
+
+
+MAX_RESOLUTION = 8192
+"""Largest `--resolution`: one 8192^2 RGBA float32 film is 1 GiB in Cycles, several are held at once."""
+MAX_SAMPLES = 1 << 16
+MAX_PROCEDURAL = 10_000
+"""Largest `recipe --procedural`: about 40 s of Blender per 100 objects, so a few hours at most."""
+
+
+def _check_render_args(args: argparse.Namespace) -> None:
+    """Cheap checks before any scan or Blender start (issue 17): one line naming the flag and the fix."""
+    from gaffer_data.errors import ConfigError
+
+    if args.timeout is not None and not args.timeout > 0:
+        raise ConfigError(
+            f"`--timeout` is {args.timeout}; pass seconds > 0, or leave it out for no limit."
+        )
+    if not 8 <= args.resolution <= MAX_RESOLUTION:
+        raise ConfigError(
+            f"`--resolution` is {args.resolution}; pass 8..{MAX_RESOLUTION} px (one "
+            f"{args.resolution}^2 float film would need "
+            f"{args.resolution**2 * 16 / 2**30:.1f} GiB)."
+        )
+    if not 1 <= args.samples <= MAX_SAMPLES:
+        raise ConfigError(f"`--samples` is {args.samples}; pass 1..{MAX_SAMPLES} per pixel.")
+    if args.workers < 1:
+        raise ConfigError(f"`--workers` is {args.workers}; pass 1 or more.")
+    if args.retries < 0:
+        raise ConfigError(f"`--retries` is {args.retries}; pass 0 or more.")
+    if args.lightings < 0:
+        raise ConfigError(f"`--lightings` is {args.lightings}; pass 0 or more.")
+    if args.yaw_steps < 1:
+        raise ConfigError(f"`--yaw-steps` is {args.yaw_steps}; pass 1 (no yaw) or more.")
+    if not 0 <= args.world_map_resolution <= 16384:
+        raise ConfigError(
+            f"`--world-map-resolution` is {args.world_map_resolution}; pass 0 (automatic)..16384."
+        )
 
 
 def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
@@ -73,6 +111,7 @@ def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
 def _render(args: argparse.Namespace) -> int:
     from gaffer_data.config import RenderConfig
 
+    _check_render_args(args)
     config = RenderConfig(
         views=args.views,
         area_light_render=not args.no_area_light,
@@ -84,6 +123,7 @@ def _render(args: argparse.Namespace) -> int:
 def _render_multiview(args: argparse.Namespace) -> int:
     from gaffer_data.config import MultiviewConfig, multiview_render_config
 
+    _check_render_args(args)
     multiview = MultiviewConfig(
         train_views=args.train_views,
         test_views=args.test_views,
@@ -102,8 +142,10 @@ def _recipe(args: argparse.Namespace) -> int:
     from gaffer_data.errors import ConfigError
     from gaffer_data.recipes import build_default_recipe
 
-    if args.procedural < 0:
-        raise ConfigError(f"`--procedural` is {args.procedural}; expected a count >= 0.")
+    if not 0 <= args.procedural <= MAX_PROCEDURAL:
+        raise ConfigError(
+            f"`--procedural` is {args.procedural}; expected a count in 0..{MAX_PROCEDURAL}."
+        )
     if not args.out.strip():  # Path("") would be the current folder
         raise ConfigError("`out` is empty; pass the folder to write the recipe into.")
     recipe = build_default_recipe(Path(args.out), procedural=args.procedural, seed=args.seed)
@@ -170,14 +212,38 @@ def _schema(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     from gaffer_data.dataset import open_dataset
+    from gaffer_data.errors import InputError
 
-    ds = open_dataset(args.root)
+    root = Path(args.root)
+    if root.is_dir() and not (root / "dataset.json").is_file() and not (root / "objects").is_dir():
+        raise InputError(
+            f"`root`={str(root)!r} is not a gaffer-data dataset (no dataset.json, no objects/); "
+            "pass the `--out` folder of `gaffer-data render`."
+        )
+    ds = open_dataset(root)
     images = 0
     for obj in ds.iter_objects(verify=args.verify):
         images += sum(len(v.lit) + (v.area is not None) for v in obj.views)
     print(f"{len(ds)} complete objects, {images} images, {len(ds.failures)} failed")
     for failure in ds.failures:
         print(f"  failed {failure.object_id}: {failure.reason}")
+    # object folders without a manifest: still rendering, killed, or a deleted manifest.json
+    listed = set(ds.object_ids)
+    unlisted = sorted(
+        p.name
+        for p in (root / "objects").glob("*")
+        if p.is_dir() and not p.name.startswith(".") and p.name not in listed
+    )
+    if unlisted:
+        shown = ", ".join(unlisted[:5]) + (", ..." if len(unlisted) > 5 else "")
+        print(f"  {len(unlisted)} object folder(s) without manifest.json (incomplete): {shown}")
+    if args.verify and unlisted:
+        print(
+            "error: --verify: some object folders have no manifest.json; rerun the render into "
+            "this folder to finish them",
+            file=sys.stderr,
+        )
+        return 1
     return 0
 
 
@@ -404,6 +470,9 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except GafferDataError as exc:
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
+        return 2
+    except GafferEnvmapError as exc:  # env-map I/O of a sibling package (issue 17)
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
         print(

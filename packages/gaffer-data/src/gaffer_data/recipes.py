@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gaffer_data.errors import InputError, MissingDependencyError, missing_extra
+from gaffer_envmap.atomic import atomic_files
 
 logger = logging.getLogger(__name__)
 
@@ -69,7 +70,12 @@ def scan_objects(src: str | Path) -> list[tuple[str, Path]]:
                 raise InputError(f"`{src}` line {n} is not a filter record ({exc!r}).") from exc
     elif src.is_dir():
         files = sorted(
-            p for p in src.rglob("*") if p.suffix.lower() in MESH_SUFFIXES and p.is_file()
+            p
+            for p in src.rglob("*")
+            if p.suffix.lower() in MESH_SUFFIXES
+            and p.is_file()
+            # a killed `recipe` leaves only a hidden staging folder (`.partial-*`): never objects
+            and not any(part.startswith(".") for part in p.relative_to(src).parts)
         )
         pairs = [(object_id_from_path(p, src), p) for p in files]
     else:
@@ -161,15 +167,11 @@ def build_default_recipe(
     if procedural > 0:
         if importlib.util.find_spec("bpy") is None:
             raise missing_extra("bpy", "render")
-        cmd = [
-            sys.executable,
-            "-m",
-            "gaffer_data.render.procedural",
-            "--out",
-            str(objects / "procedural"),
-        ]
-        cmd += ["--count", str(procedural), "--seed", str(seed)]
-        result = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if result.returncode != 0:
-            raise InputError(f"building procedural objects failed:\n{result.stderr[-2000:]}")
+        # all procedural objects or none (issue 17): built in a hidden staging folder, moved at the end
+        with atomic_files(objects / "procedural") as stage:
+            cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(stage)]
+            cmd += ["--count", str(procedural), "--seed", str(seed)]
+            result = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if result.returncode != 0:
+                raise InputError(f"building procedural objects failed:\n{result.stderr[-2000:]}")
     return Recipe(objects=objects, envmaps=envmaps)
