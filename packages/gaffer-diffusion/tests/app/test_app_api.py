@@ -1,4 +1,5 @@
-"""`gaffer-diffusion app` through its API (gradio_client): previews, relight, turntable, refusals.
+"""`gaffer-diffusion app` through its API (gradio_client): previews, relight at the photo's size or
+the model's, the automatic mask, turntable GIF and MP4, refusals.
 
 The server is a separate process (conftest.py); the images it returns are checked against the
 library called directly, so the page shows what `gaffer-diffusion relight` computes.
@@ -42,7 +43,28 @@ def _rgb(path: str | Path) -> np.ndarray:
         return np.asarray(im.convert("RGB"))
 
 
-def _job(photo: Path | None, mask: Path | None = None, hdri: str = "sunset") -> list[Any]:
+def _on_canvas(photo: Path, out: Path, size: tuple[int, int], at: tuple[int, int]) -> Path:
+    """The RGBA example placed on a larger transparent canvas (a photo bigger than the model)."""
+    canvas = Image.new("RGBA", size, (0, 0, 0, 0))
+    canvas.alpha_composite(Image.open(photo).convert("RGBA"), at)
+    canvas.save(out)
+    return out
+
+
+def _rgb_photo(photo: Path, out: Path) -> Path:
+    """The example on an opaque grey-blue gradient, 240x180, saved without alpha (JPEG)."""
+    grad = np.zeros((180, 240, 4), np.uint8)
+    grad[..., 0] = np.linspace(70, 140, 240)[None, :].astype(np.uint8)
+    grad[..., 1], grad[..., 2], grad[..., 3] = 110, 150, 255
+    canvas = Image.fromarray(grad)
+    canvas.alpha_composite(Image.open(photo).convert("RGBA"), (56, 26))
+    canvas.convert("RGB").save(out, quality=95)
+    return out
+
+
+def _job(
+    photo: Path | None, mask: Path | None = None, hdri: str = "sunset", size: str = "photo"
+) -> list[Any]:
     from gradio_client import handle_file
 
     return [
@@ -54,6 +76,7 @@ def _job(photo: Path | None, mask: Path | None = None, hdri: str = "sunset") -> 
         *POSE,
         None,  # steps: the model's suggestion
         0,  # seed
+        size,  # output size: "photo" (full size, pasted back) or "model" (the crop)
     ]
 
 
@@ -82,55 +105,142 @@ def test_preview_shows_the_library_encoding(client: Any) -> None:
     assert np.abs(_rgb(ldr2).astype(int) - ldr_a.astype(int)).mean() > 2.0
 
 
-def test_relight_matches_the_cli(client: Any, tmp_path: Path) -> None:
+def _cli(photo: Path, out: Path, *extra: str) -> np.ndarray:
     from gaffer_diffusion.cli import main
     from gaffer_envmap.bundled import bundled_hdri
 
+    argv = ["relight", str(photo), "--envmap", str(bundled_hdri("sunset"))]
+    argv += ["--azimuth", str(POSE[0]), "--elevation", str(POSE[1]), "--out", str(out)]
+    assert main([*argv, *extra, "--device", "cpu"]) == 0
+    with Image.open(out) as im:
+        return np.asarray(im)
+
+
+def test_relight_full_size_matches_the_cli(client: Any, tmp_path: Path) -> None:
+    """The default output is the photo at its own size, relit object pasted back (alpha kept)."""
+    photo = _on_canvas(_example()[0], tmp_path / "wide.png", (300, 200), (150, 40))
+    _, mask, relit, download, status = client.predict(*_job(photo), api_name="/relight")
+    with Image.open(relit) as im:
+        relit_a = np.asarray(im)
+    assert relit_a.shape == (200, 300, 4), relit_a.shape  # the photo's size; its alpha kept
+    assert np.asarray(Image.open(mask).convert("L")).shape == (200, 300)
+    assert "300x200" in status and "detail transfer" in status
+    with Image.open(download["value"]) as im:
+        assert np.asarray(im).tolist() == relit_a.tolist()
+    want = _cli(photo, tmp_path / "cli.png")  # the CLI's default: the input's size
+    diff = np.abs(relit_a.astype(int) - want.astype(int))
+    assert diff.max() <= 1, f"app and CLI differ by up to {diff.max()} levels"
+    src = np.asarray(Image.open(photo))
+    outside = src[..., 3] == 0
+    assert (relit_a[outside] == src[outside]).all()  # the rest of the photo: its own bytes
+    inside = src[..., 3] > 200
+    assert np.abs(relit_a[..., :3].astype(int) - src[..., :3].astype(int))[inside].mean() > 3.0
+
+
+def test_relight_model_crop_matches_the_cli(client: Any, tmp_path: Path) -> None:
     photo, _ = _example()
-    prepared, mask, relit, download, status = client.predict(*_job(photo), api_name="/relight")
+    prepared, mask, relit, download, status = client.predict(
+        *_job(photo, size="model"), api_name="/relight"
+    )
     relit_a = _rgb(relit)
     assert relit_a.shape == (128, 128, 3)
     assert _rgb(download["value"]).tolist() == relit_a.tolist()
-    assert "gaffer-tiny" in status and "128x128" in status
-    reference = tmp_path / "cli.png"
-    argv = ["relight", str(photo), "--envmap", str(bundled_hdri("sunset"))]
-    argv += ["--azimuth", str(POSE[0]), "--elevation", str(POSE[1]), "--out", str(reference)]
-    argv += ["--output-size", "model"]  # the app shows the model's crop
-    assert main([*argv, "--device", "cpu"]) == 0
-    diff = np.abs(relit_a.astype(int) - _rgb(reference).astype(int))
+    assert "gaffer-tiny" in status and "128x128" in status and "crop" in status
+    want = _cli(photo, tmp_path / "cli.png", "--output-size", "model")[..., :3]
+    diff = np.abs(relit_a.astype(int) - want.astype(int))
     assert diff.max() <= 1, f"app and CLI differ by up to {diff.max()} levels"
     # it relit something: the object changed, the background outside the mask stayed white
-    inp, m = _rgb(prepared), np.asarray(Image.open(mask).convert("L"))
+    inp = _rgb(prepared)
+    m = np.asarray(Image.open(mask).convert("L"))  # the crop's mask, beside the crop
     assert np.abs(relit_a.astype(int) - inp.astype(int))[m > 200].mean() > 3.0
     assert np.abs(relit_a.astype(int) - inp.astype(int))[m == 0].max() <= 1
 
 
-def test_rgb_photo_needs_a_mask(client: Any, tmp_path: Path) -> None:
+def test_rgb_photo_gets_the_auto_mask(client: Any, tmp_path: Path) -> None:
+    """An RGB photo without a mask: GrabCut's mask is shown, used, and can be replaced."""
+    example, alpha = _example()
+    rgb = _rgb_photo(example, tmp_path / "photo.jpg")
+    from gradio_client import handle_file
+
+    auto, note = client.predict(handle_file(str(rgb)), None, api_name="/auto_mask")
+    auto_a = np.asarray(Image.open(auto).convert("L"))
+    assert auto_a.shape == (180, 240) and "GrabCut" in note
+    truth = np.zeros((180, 240), bool)
+    truth[26:154, 56:184] = np.asarray(Image.open(alpha).convert("L")) > 127
+    iou = ((auto_a > 127) & truth).sum() / ((auto_a > 127) | truth).sum()
+    assert iou > 0.8, f"GrabCut's mask overlaps the object by IoU {iou:.2f}"
+    _, used, relit, _, status = client.predict(*_job(rgb), api_name="/relight")
+    assert _rgb(relit).shape == (180, 240, 3)  # the photo's size
+    assert np.asarray(Image.open(used).convert("L")).tolist() == auto_a.tolist()
+    assert "GrabCut" in status and "upload a corrected mask" in status
+    src = _rgb(rgb)
+    outside = auto_a == 0
+    assert (_rgb(relit)[outside] == src[outside]).all()
+    # the user's own mask replaces it
+    own = tmp_path / "own.png"
+    Image.fromarray(truth.astype(np.uint8) * 255).save(own)
+    _, used, _, _, status = client.predict(*_job(rgb, own), api_name="/relight")
+    assert np.asarray(Image.open(used).convert("L")).tolist() == (truth * 255).tolist()
+    assert "GrabCut" not in status
+
+
+def test_mask_of_another_size_is_refused(client: Any, tmp_path: Path) -> None:
     from gradio_client.exceptions import AppError
 
-    photo, alpha = _example()
-    rgb = tmp_path / "photo.jpg"
-    Image.open(photo).convert("RGB").save(rgb, quality=95)
-    with pytest.raises(AppError, match=r"no alpha channel.*upload a mask"):
-        client.predict(*_job(rgb), api_name="/relight")
-    _, mask, relit, _, _ = client.predict(*_job(rgb, alpha), api_name="/relight")
-    assert _rgb(relit).shape == (128, 128, 3)
-    assert np.asarray(Image.open(mask).convert("L")).max() == 255
+    rgb = _rgb_photo(_example()[0], tmp_path / "photo.jpg")
+    small = tmp_path / "small.png"
+    Image.new("L", (64, 48), 255).save(small)
+    with pytest.raises(AppError, match=r"64x48 but the image .* is 240x180"):
+        client.predict(*_job(rgb, small), api_name="/relight")
 
 
-def test_turntable_gif(client: Any) -> None:
+def _mp4_backend() -> str | None:
+    from gaffer_diffusion.app.engine import mp4_backend
+
+    return mp4_backend()
+
+
+def test_turntable_gif_and_mp4(client: Any) -> None:
     photo, _ = _example()
-    gif, download, status = client.predict(*_job(photo), 4, 8, api_name="/turntable")
+    gif, download, mp4, status = client.predict(*_job(photo), 4, 8, api_name="/turntable")
     assert Path(gif).suffix == ".gif" and Path(download["value"]).suffix == ".gif"
     assert "4 frames" in status
     with Image.open(gif) as im:
-        assert im.n_frames == 4 and im.size == (128, 128)
+        assert im.n_frames == 4 and im.size == (128, 128)  # the photo's size
         frames = []
         for k in range(im.n_frames):
             im.seek(k)
             frames.append(np.asarray(im.convert("RGB")).astype(int))
     # the light turns: every frame differs from the first
     assert all(np.abs(f - frames[0]).mean() > 1.0 for f in frames[1:])
+    if _mp4_backend() is None:
+        pytest.skip("no MP4 encoder here (ffmpeg, PyAV or OpenCV); test_app_mp4 covers the page")
+    video = Path(mp4["value"])
+    assert video.suffix == ".mp4"
+    with video.open("rb") as f:
+        head = f.read(12)
+    assert head[4:8] == b"ftyp", head  # an ISO base media file, as MP4 players expect
+    cv2 = pytest.importorskip("cv2")
+    cap = cv2.VideoCapture(str(video))
+    try:
+        n, size = 0, None
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            n, size = n + 1, frame.shape[:2]
+    finally:
+        cap.release()
+    assert n == 4 and size == (128, 128)
+
+
+def test_turntable_frames_are_capped(client: Any, tmp_path: Path) -> None:
+    """A photo larger than `--max-turntable-side` (512) gives frames shrunk to it, aspect kept."""
+    photo = _on_canvas(_example()[0], tmp_path / "big.png", (1000, 500), (436, 186))
+    gif, _, _, status = client.predict(*_job(photo), 2, 8, api_name="/turntable")
+    with Image.open(gif) as im:
+        assert im.size == (512, 256)
+    assert "1000x500 photo shrunk" in status
 
 
 def test_turntable_frame_limit(client: Any) -> None:

@@ -21,7 +21,18 @@ import gradio as gr
 import numpy as np
 from PIL import Image
 
-from gaffer_diffusion.app.engine import CameraPose, Engine, RelightResult, write_gif
+from gaffer_diffusion.app.engine import (
+    AUTO_MASK_NOTE,
+    MP4_UNAVAILABLE,
+    OUTPUT_SIZES,
+    CameraPose,
+    Engine,
+    PhotoInput,
+    RelightResult,
+    mp4_backend,
+    write_gif,
+    write_mp4,
+)
 from gaffer_diffusion.errors import GafferDiffusionError
 
 logger = logging.getLogger(__name__)
@@ -120,13 +131,16 @@ def _envmap_path(bundled: str | None, upload: str | None) -> str:
 def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
     """The page: inputs (photo, mask, model, lighting), live lighting previews, relight, turntable.
 
-    API endpoints (for `gradio_client`): `/preview`, `/relight`, `/turntable`.
+    API endpoints (for `gradio_client`): `/preview`, `/auto_mask`, `/relight`, `/turntable`.
     """
     from gaffer_envmap.bundled import bundled_hdris
 
     jobs = _Jobs(jobs_root)
     hdris = list(bundled_hdris())
     labels = engine.model_labels
+    mp4 = (
+        mp4_backend()
+    )  # probed once: the MP4 button is hidden, with the reason, without an encoder
 
     @_shown_in_page
     def preview(
@@ -148,15 +162,22 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         pose: tuple[float, float, float],
         steps: float | None,
         seed: float | None,
+        output_size: str | None,
         frames: int,
-    ) -> tuple[RelightResult, Path, float]:
+    ) -> tuple[PhotoInput, RelightResult, Path, float]:
         if not photo:
             raise gr.Error(
-                "Upload a photo of the object first (RGBA, or RGB with a mask).",
+                "Upload a photo of the object first (RGBA, or RGB with a mask or the automatic one).",
                 print_exception=False,
             )
+        size = output_size or "photo"
+        if size not in OUTPUT_SIZES:
+            raise gr.Error(
+                f"Output size must be one of {', '.join(OUTPUT_SIZES)}.", print_exception=False
+            )
         t0 = time.perf_counter()
-        prepared = engine.prepare(model, photo, mask or None)
+        cap = engine.config.max_turntable_side if frames > 1 and size == "photo" else None
+        prepared = engine.prepare(model, photo, mask or None, max_side=cap)
         result = engine.relight(
             model,
             prepared,
@@ -167,8 +188,38 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             num_inference_steps=None if steps in (None, 0) else int(steps),
             seed=0 if seed is None else int(seed),
             frames=frames,
+            output_size=size,  # type: ignore[arg-type]
         )
-        return result, jobs.new(), time.perf_counter() - t0
+        return prepared, result, jobs.new(), time.perf_counter() - t0
+
+    def _size_text(prepared: PhotoInput, result: RelightResult) -> str:
+        h, w = result.frames[0].shape[:2]
+        if result.output_size == "model":
+            return f"the model's {w}x{h} px object crop"
+        text = f"the photo's size, {w}x{h} px, with detail transfer"
+        if prepared.shrunk_from is not None:
+            pw, ph = prepared.shrunk_from
+            text = (
+                f"{w}x{h} px, the {pw}x{ph} photo shrunk to `--max-turntable-side` "
+                f"{engine.config.max_turntable_side}, with detail transfer"
+            )
+        return text
+
+    def _mask_text(prepared: PhotoInput) -> str:
+        return f" {AUTO_MASK_NOTE}" if prepared.auto_mask else ""
+
+    @_shown_in_page
+    def auto_mask(photo: str | None, mask: str | None, mask_is_auto: bool) -> tuple[Any, ...]:
+        """A new photo without alpha gets GrabCut's mask in the mask field (a user's upload stays)."""
+        if not photo:
+            return (None if mask_is_auto else gr.skip()), False, ""
+        if engine.has_alpha(photo):
+            return (None if mask_is_auto else gr.skip()), False, ""
+        if mask and not mask_is_auto:
+            return gr.skip(), False, ""
+        out = jobs.new()
+        path = _save_png(out / "auto_mask.png", engine.auto_mask(photo))
+        return path, True, AUTO_MASK_NOTE
 
     @_shown_in_page
     def relight(
@@ -182,19 +233,22 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         spin: float,
         steps: float | None,
         seed: float | None,
+        output_size: str | None = "photo",
     ) -> tuple[Any, ...]:
-        result, out, seconds = _run(
-            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, 0
+        prepared, result, out, seconds = _run(
+            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, output_size, 0
         )
         relit = _save_png(out / "relit.png", result.frames[0])
-        size = result.frames[0].shape[0]
         status = (
-            f"Relit with {result.model} ({result.steps} step(s)) in {seconds:.1f} s, at the model's "
-            f"{size}x{size} px object crop."
+            f"Relit with {result.model} ({result.steps} step(s)) in {seconds:.1f} s, at "
+            f"{_size_text(prepared, result)}.{_mask_text(prepared)}"
         )
         return (
             _save_png(out / "input.png", result.input_rgb),
-            _save_png(out / "mask.png", result.mask),
+            # the mask beside the output: the photo's at full size, the crop's with the crop
+            _save_png(
+                out / "mask.png", result.mask if result.output_size == "model" else prepared.mask
+            ),
             relit,
             gr.DownloadButton(value=relit, interactive=True),
             status,
@@ -212,31 +266,40 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         spin: float,
         steps: float | None,
         seed: float | None,
+        output_size: str | None,
         frames: float,
         fps: float,
     ) -> tuple[Any, ...]:
         n = int(frames)
         if n < 2:
             raise gr.Error("A turntable needs 2 or more frames.", print_exception=False)
-        result, out, seconds = _run(
-            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, n
+        prepared, result, out, seconds = _run(
+            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, output_size, n
         )
         gif = str(write_gif(out / "turntable.gif", result.frames, float(fps)))
-        status = f"Turntable of {n} frames with {result.model} in {seconds:.1f} s."
-        return gif, gr.DownloadButton(value=gif, interactive=True), status
+        status = (
+            f"Turntable of {n} frames with {result.model} in {seconds:.1f} s, at "
+            f"{_size_text(prepared, result)}.{_mask_text(prepared)}"
+        )
+        mp4_button: Any = gr.skip()
+        if mp4 is not None:
+            video = str(write_mp4(out / "turntable.mp4", result.frames, float(fps)))
+            mp4_button = gr.DownloadButton(value=video, interactive=True)
+        return gif, gr.DownloadButton(value=gif, interactive=True), mp4_button, status
 
     with gr.Blocks(
         title="gaffer: relight an object", analytics_enabled=False, delete_cache=(600, 3600)
     ) as demo:
         gr.Markdown(
             "# gaffer: relight an object from one photo\n"
-            "Upload a photo of an object (an RGBA PNG with a transparent background, or an RGB photo "
-            "and its mask), choose the lighting, and relight. Everything runs on this machine."
+            "Upload a photo of an object (an RGBA PNG with a transparent background, or an RGB photo: "
+            "its mask is estimated and shown, and you can upload a better one in its place), choose "
+            "the lighting, and relight it at the photo's full size. Everything runs on this machine."
         )
         with gr.Row():
             with gr.Column():
                 photo = gr.Image(
-                    label="Photo (RGBA, or RGB with a mask)",
+                    label="Photo (RGBA, or RGB: its mask is estimated below)",
                     type="filepath",
                     image_mode=None,
                     sources=["upload", "clipboard"],
@@ -244,13 +307,15 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     height=260,
                 )
                 mask = gr.Image(
-                    label="Mask (white = object), for photos without alpha",
+                    label="Mask (white = object) for photos without alpha: automatic (GrabCut), "
+                    "replace it by uploading yours",
                     type="filepath",
                     image_mode=None,
                     sources=["upload"],
                     elem_id="mask",
                     height=160,
                 )
+                mask_is_auto = gr.State(False)
                 model = gr.Dropdown(choices=labels, value=labels[0], label="Model", elem_id="model")
             with gr.Column():
                 hdri = gr.Dropdown(
@@ -319,6 +384,16 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     elem_id="frames",
                 )
                 fps = gr.Slider(1, 30, value=12, step=1, label="Turntable fps", elem_id="fps")
+                output_size = gr.Radio(
+                    choices=[
+                        ("the photo's full size", "photo"),
+                        ("the model's object crop", "model"),
+                    ],
+                    value="photo",
+                    label="Output size (turntables: up to --max-turntable-side "
+                    f"{engine.config.max_turntable_side} px)",
+                    elem_id="output_size",
+                )
         with gr.Row():
             relight_btn = gr.Button("Relight", variant="primary", elem_id="relight")
             turntable_btn = gr.Button("Turntable", elem_id="turntable")
@@ -363,6 +438,17 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             gif_dl = gr.DownloadButton(
                 "Download turntable GIF", interactive=False, elem_id="download_gif"
             )
+            mp4_dl = gr.DownloadButton(
+                "Download turntable MP4",
+                interactive=False,
+                visible=mp4 is not None,
+                elem_id="download_mp4",
+            )
+        gr.Markdown(
+            f"*No MP4 download: {MP4_UNAVAILABLE}*" if mp4 is None else "",
+            visible=mp4 is None,
+            elem_id="mp4_note",
+        )
 
         light_inputs = [model, hdri, envfile, az, el, spin]
         previews = [ldr, hdr, view]
@@ -380,7 +466,17 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         for field in (model, hdri):
             field.change(api_visibility="private", **preview_args)
         envfile.change(api_visibility="private", **preview_args)
-        job_inputs = [model, photo, mask, hdri, envfile, az, el, spin, steps, seed]
+        photo.change(
+            auto_mask,
+            [photo, mask, mask_is_auto],
+            [mask, mask_is_auto, status],
+            api_name="auto_mask",
+            concurrency_id="mask",
+            concurrency_limit=1,
+        )
+        # a mask the user uploads replaces the automatic one and is kept for the next photo
+        mask.upload(lambda: False, None, mask_is_auto, api_visibility="private")
+        job_inputs = [model, photo, mask, hdri, envfile, az, el, spin, steps, seed, output_size]
         # one sampling job at a time across both buttons (and the API); others wait in the queue
         relight_btn.click(
             relight,
@@ -393,7 +489,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         turntable_btn.click(
             turntable,
             [*job_inputs, frames, fps],
-            [spin_gif, gif_dl, status],
+            [spin_gif, gif_dl, mp4_dl, status],
             api_name="turntable",
             concurrency_id="model",
             concurrency_limit=1,

@@ -46,6 +46,8 @@ class AppConfig:
         max_image_side: largest accepted side of an uploaded photo or environment map, in pixels.
         queue_size: relight/turntable requests that may wait behind the running one.
         max_frames: most turntable frames one request may ask for.
+        max_turntable_side: longest side of a full-size turntable's frames, pixels: a larger photo
+            is shrunk to it before its frames are pasted back (a single relight is never shrunk).
     """
 
     host: str = "127.0.0.1"
@@ -59,6 +61,7 @@ class AppConfig:
     max_image_side: int = 4096
     queue_size: int = 16
     max_frames: int = 48
+    max_turntable_side: int = 512
 
     def __post_init__(self) -> None:
         if not 0 < self.port < 65536:
@@ -80,6 +83,10 @@ class AppConfig:
             raise ConfigError(f"`--queue-size` is {self.queue_size}; expected >= 1.")
         if self.max_frames < 2:
             raise ConfigError(f"`--max-frames` is {self.max_frames}; expected >= 2.")
+        if self.max_turntable_side < 16:
+            raise ConfigError(
+                f"`--max-turntable-side` is {self.max_turntable_side}; expected >= 16, e.g. 512."
+            )
 
     @property
     def max_upload_bytes(self) -> int:
@@ -129,6 +136,13 @@ def add_app_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--max-frames", type=int, default=48, help="most turntable frames per request (default 48)"
     )
+    p.add_argument(
+        "--max-turntable-side",
+        type=int,
+        default=512,
+        help="longest side of full-size turntable frames; larger photos are shrunk to it for the "
+        "turntable only (default 512)",
+    )
 
 
 def _default_device() -> str:
@@ -174,4 +188,5 @@ def config_from_args(args: argparse.Namespace) -> AppConfig:
         max_image_side=args.max_image_side,
         queue_size=args.queue_size,
         max_frames=args.max_frames,
+        max_turntable_side=args.max_turntable_side,
     )

@@ -1,19 +1,26 @@
 """What the app does, without Gradio: the library's public calls behind the page's controls.
 
-Each call here mirrors `gaffer-diffusion relight` (cli.py): `load_object_image` crops the object and
-puts it on white at the model size, `lighting_from_envmap` rotates the map into the camera frame and
-splits it into E_L / E_H (Neural Gaffer §3.2), `RelightPipeline` samples with the model's own
-suggested settings (`demo.sampling_for`), and the input's background is kept outside its mask. The
-page (`_ui.py`) only turns these results into widgets, so the API and the browser see the same pixels.
+Each call here mirrors `gaffer-diffusion relight` (cli.py): `photo.read_photo` reads the photo as it is
+displayed, its mask is the uploaded one, its alpha, or `automask.grabcut_mask` (the `--mask auto`
+classical fallback), `photo.prepare_photo` crops the object and puts it on white at the model size,
+`lighting_from_envmap` rotates the map into the camera frame and splits it into E_L / E_H (Neural Gaffer
+§3.2), `RelightPipeline` samples with the model's own suggested settings (`demo.sampling_for`), and
+`photo.paste_back` returns the relit object at the photo's full size with detail transfer (pixels
+outside the mask are the photo's bytes), or `photo.model_crop` the model-size crop. The page (`_ui.py`)
+only turns these results into widgets, so the API and the browser see the same pixels.
 """
 
+import functools
 import logging
 import math
+import os
+import tempfile
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -27,10 +34,20 @@ from gaffer_diffusion.conditioning import (
     lighting_from_envmap,
 )
 from gaffer_diffusion.demo import LoadedModel, load_model, sampling_for
-from gaffer_diffusion.errors import ConfigError, InputValueError
+from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
 from gaffer_diffusion.loading import load_authors_release
+from gaffer_diffusion.photo import (
+    Photo,
+    PreparedPhoto,
+    check_mask,
+    model_crop,
+    object_alpha,
+    paste_back,
+    prepare_photo,
+    read_mask,
+    read_photo,
+)
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig
-from gaffer_diffusion.preprocess import PreparedImage, load_object_image
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +59,18 @@ BATCH_SIZE = 4
 
 _ENVMAP_CACHE = 4
 """Environment maps kept decoded, so dragging a slider does not re-read the EXR each time."""
+
+OutputSize = Literal["photo", "model"]
+"""`photo`: the relit object pasted back into the photo at its full size (default); `model`: the
+model's square object crop (`gaffer-diffusion relight --output-size model`)."""
+
+OUTPUT_SIZES: tuple[OutputSize, ...] = ("photo", "model")
+
+AUTO_MASK_NOTE = (
+    "Mask estimated by GrabCut (`--mask auto`, a classical fallback, not a learned segmenter): check "
+    "it, and upload a corrected mask (white = object) in its place if it is wrong."
+)
+"""What the page says beside an automatic mask."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -95,9 +124,12 @@ class RelightResult:
     Attributes:
         input_rgb: `[S, S, 3]` uint8 the model's input: the object cropped, on white.
         mask: `[S, S]` uint8 the object's mask at the model size.
-        frames: `[S, S, 3]` uint8 relit images, one per turntable step (one for a plain relight).
+        frames: relit images, one per turntable step (one for a plain relight): `[H, W, 3]` uint8 at
+            the photo's size (`[H, W, 4]` when the photo has alpha, which is kept), or `[S, S, 3]`
+            with `output_size="model"`.
         model: the model's label.
         steps: denoising steps used.
+        output_size: "photo" or "model".
     """
 
     input_rgb: np.ndarray
@@ -105,6 +137,30 @@ class RelightResult:
     frames: tuple[np.ndarray, ...]
     model: str
     steps: int
+    output_size: OutputSize = "photo"
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhotoInput:
+    """A photo ready to relight: framed for the model, with the mask it was framed by.
+
+    Attributes:
+        prepared: the photo, its object mask and the model's input (`photo.prepare_photo`).
+        mask: `[H, W]` uint8 object mask at the photo's (possibly shrunk) size: the uploaded one,
+            the photo's alpha, or the automatic one.
+        auto_mask: whether `mask` is the GrabCut estimate.
+        shrunk_from: the photo's own `(width, height)` when it was shrunk (turntables), else None.
+    """
+
+    prepared: PreparedPhoto
+    mask: np.ndarray
+    auto_mask: bool = False
+    shrunk_from: tuple[int, int] | None = None
+
+    @property
+    def size_wh(self) -> tuple[int, int]:
+        """`(width, height)` of the photo as relit."""
+        return self.prepared.photo.size_wh
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -231,31 +287,80 @@ class Engine:
             camera_view=tonemap_preview(view[0].numpy()),
         )
 
-    def prepare(
-        self, label: str, image_path: str | Path, mask_path: str | Path | None
-    ) -> PreparedImage:
-        """The photo cropped around its object, on white, at the model size.
+    def auto_mask(self, image_path: str | Path) -> np.ndarray:
+        """`[H, W]` uint8 GrabCut mask of an uploaded photo (`automask.grabcut_mask`, checked).
 
         Raises:
-            InputValueError: an unreadable or too large photo, a photo without alpha and no mask,
-                a mask of another size, an empty mask.
+            InputValueError: an unreadable or too large photo, or GrabCut found no object.
+            MissingDependencyError: OpenCV (the `photo` extra) is not installed.
+        """
+        self._check_image(image_path, "photo")
+        return self._auto_mask(read_photo(image_path))
+
+    @staticmethod
+    def _auto_mask(photo: Photo) -> np.ndarray:
+        from gaffer_diffusion.automask import grabcut_mask
+
+        try:
+            alpha = grabcut_mask(photo.rgb_u8)
+        except MissingDependencyError as exc:
+            raise MissingDependencyError(
+                "The photo has no alpha channel and the automatic mask needs OpenCV, which is not "
+                'installed (pip install "gaffer-diffusion[photo]"): upload a mask (white = object).'
+            ) from exc
+        check_mask(alpha, "The automatic (GrabCut) mask")
+        return np.round(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+    @staticmethod
+    def has_alpha(image_path: str | Path) -> bool:
+        """Whether an uploaded image carries transparency (read from its header)."""
+        with Image.open(image_path) as im:
+            return im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in im.info
+
+    def prepare(
+        self,
+        label: str,
+        image_path: str | Path,
+        mask_path: str | Path | None,
+        *,
+        max_side: int | None = None,
+    ) -> PhotoInput:
+        """The photo, its mask and the model's input (the object cropped, on white, at the model size).
+
+        The mask is `mask_path`, else the photo's alpha, else GrabCut's estimate. `max_side` shrinks a
+        larger photo (and its mask) first, so that a turntable's full-size frames stay cheap.
+
+        Raises:
+            InputValueError: an unreadable or too large photo, a mask of another size, an empty or
+                full mask, GrabCut finding no object.
+            MissingDependencyError: no alpha, no mask and no OpenCV for the automatic one.
         """
         m = self.model(label)
         self._check_image(image_path, "photo")
-        if mask_path is None:
-            with Image.open(image_path) as im:
-                has_alpha = im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info
-            if not has_alpha:
-                raise InputValueError(
-                    "The photo has no alpha channel, so the app cannot tell the object from the "
-                    "background: upload a mask (white = object) beside it, or an RGBA PNG whose "
-                    "background is transparent."
-                )
-        else:
+        photo = read_photo(image_path)
+        auto = False
+        if mask_path is not None:
             self._check_image(mask_path, "mask")
+            alpha = object_alpha(photo, read_mask(mask_path, photo))
+        elif photo.alpha is not None:
+            alpha = object_alpha(photo, None)
+        else:
+            alpha = self._auto_mask(photo).astype(np.float32) / 255.0
+            auto = True
+        shrunk_from = None
+        if max_side is not None and max(photo.size_wh) > max_side:
+            shrunk_from = photo.size_wh
+            photo, alpha = _shrink(photo, alpha, max_side)
         fraction = m.loaded.suggested_object_fraction
-        kwargs = {} if fraction is None else {"object_fraction": fraction}
-        return load_object_image(image_path, mask_path=mask_path, size=m.size, **kwargs)
+        prepared = prepare_photo(
+            photo,
+            alpha,
+            size=m.size,
+            compat=m.compat,
+            object_fraction=0.75 if fraction is None else fraction,
+        )
+        mask_u8 = np.round(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+        return PhotoInput(prepared=prepared, mask=mask_u8, auto_mask=auto, shrunk_from=shrunk_from)
 
     def _check_image(self, path: str | Path, what: str) -> None:
         try:
@@ -272,19 +377,27 @@ class Engine:
     def relight(
         self,
         label: str,
-        prepared: PreparedImage,
+        photo: PhotoInput,
         envmap_path: str | Path,
         pose: CameraPose,
         *,
         num_inference_steps: int | None = None,
         seed: int = 0,
         frames: int = 0,
+        output_size: OutputSize = "photo",
     ) -> RelightResult:
-        """Relight `prepared` under the map seen from `pose`; `frames` > 1 spins the light a full turn.
+        """Relight `photo` under the map seen from `pose`; `frames` > 1 spins the light a full turn.
+
+        With `output_size="photo"` each result is pasted back into the photo at its size with detail
+        transfer (`photo.paste_back`); with "model" it is the model's crop (`photo.model_crop`).
 
         Raises:
-            InputValueError: a bad step count or frame count.
+            InputValueError: a bad step count, frame count or output size.
         """
+        if output_size not in OUTPUT_SIZES:
+            raise InputValueError(
+                f"`output_size` is {output_size!r}; pass one of {', '.join(OUTPUT_SIZES)}."
+            )
         if num_inference_steps is not None and not 1 <= num_inference_steps <= 1000:
             raise InputValueError(
                 f"`steps` is {num_inference_steps}; pass 1..1000, or leave it empty."
@@ -306,6 +419,7 @@ class Engine:
         w2c = orbit_w2c_blender(pose.azimuth_deg, pose.elevation_deg)
         lighting = lighting_from_envmap(env, [w2c] * n, size=m.size, compat=m.compat, spin_deg=spin)
         sampling = sampling_for(m.loaded, num_inference_steps, None)
+        prepared = photo.prepared.model_input
         out: list[np.ndarray] = []
         with self._sample_lock:
             for lo in range(0, n, BATCH_SIZE):
@@ -317,21 +431,159 @@ class Engine:
                 )
                 # one seed for every frame: the light moves, the noise does not (less flicker)
                 result = m.pipe(cond, sampling, seeds=[seed] * (hi - lo))
-                out.extend(_uint8(img) for img in result.images.cpu())
+                for img in result.images.cpu():
+                    if output_size == "model":
+                        out.append(model_crop(img))
+                    else:
+                        out.append(paste_back(photo.prepared, img, detail="transfer"))
         return RelightResult(
             input_rgb=_uint8(prepared.image[0]),
             mask=_uint8(prepared.mask[0]),
             frames=tuple(out),
             model=m.loaded.name,
             steps=sampling.num_inference_steps,
+            output_size=output_size,
         )
 
 
-def write_gif(path: Path, frames: tuple[np.ndarray, ...] | list[np.ndarray], fps: float) -> Path:
-    """An endlessly looping GIF of `[H, W, 3]` uint8 frames (PIL, no ffmpeg needed)."""
+def _shrink(photo: Photo, alpha: np.ndarray, max_side: int) -> tuple[Photo, np.ndarray]:
+    """`photo` and its mask resized (Lanczos) so that the longer side is `max_side`."""
+    w, h = photo.size_wh
+    k = max_side / max(w, h)
+    size = (max(round(w * k), 1), max(round(h * k), 1))
+    rgb_u8 = np.asarray(Image.fromarray(photo.rgb_u8).resize(size, Image.Resampling.LANCZOS))
+    small = Image.fromarray(np.asarray(alpha, np.float32), mode="F")
+    alpha_s = np.clip(np.asarray(small.resize(size, Image.Resampling.BILINEAR)), 0.0, 1.0)
+    alpha_u8 = None
+    if photo.alpha_u8 is not None:
+        alpha_u8 = np.asarray(
+            Image.fromarray(photo.alpha_u8).resize(size, Image.Resampling.BILINEAR)
+        )
+    shrunk = Photo(
+        rgb_u8=rgb_u8,
+        rgb=rgb_u8.astype(np.float32) / 255.0,
+        alpha=None if alpha_u8 is None else alpha_u8.astype(np.float32) / 255.0,
+        alpha_u8=alpha_u8,
+        path=photo.path,
+    )
+    return shrunk, alpha_s.astype(np.float32)
+
+
+def on_white(frame: np.ndarray) -> np.ndarray:
+    """`[H, W, 3]` uint8: an RGBA result composited over white (as the model's input is), else itself."""
+    if frame.ndim == 3 and frame.shape[-1] == 4:
+        a = frame[..., 3:4].astype(np.float32) / 255.0
+        rgb = frame[..., :3].astype(np.float32) * a + 255.0 * (1.0 - a)
+        return np.round(rgb).astype(np.uint8)
+    return frame
+
+
+def _partial(path: Path) -> Path:
+    """A sibling of `path` to write first and rename over it (same folder, same suffix)."""
+    return path.with_name(f".{path.stem}-partial{path.suffix}")
+
+
+def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
+    """An endlessly looping GIF of `[H, W, 3]` uint8 frames (PIL, no ffmpeg needed), written atomically."""
     if not frames:
         raise InputValueError("No frames to write: ask for a turntable of 2 or more frames.")
-    images = [Image.fromarray(f) for f in frames]
+    images = [Image.fromarray(on_white(f)) for f in frames]
     duration = max(round(1000.0 / fps), 20)
-    images[0].save(path, save_all=True, append_images=images[1:], duration=duration, loop=0)
+    tmp = _partial(path)
+    images[0].save(
+        tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0
+    )
+    os.replace(tmp, path)
+    return path
+
+
+Mp4Backend = Literal["ffmpeg", "pyav", "opencv"]
+
+MP4_UNAVAILABLE = (
+    "MP4 needs an encoder and none is installed (an ffmpeg binary on PATH, PyAV: pip install av, or "
+    'OpenCV: pip install "gaffer-diffusion[photo]"); the GIF is always available.'
+)
+"""Why the page has no MP4 download, when it has none."""
+
+
+def is_mp4(path: str | Path) -> bool:
+    """Whether a file starts with an ISO base media `ftyp` box (what every MP4 player looks for)."""
+    with open(path, "rb") as f:
+        head = f.read(12)
+    return len(head) == 12 and head[4:8] == b"ftyp"
+
+
+def _opencv_mp4(frames: Sequence[np.ndarray], path: Path, fps: float) -> bool:
+    """MPEG-4 Part 2 (`mp4v`) through OpenCV's bundled ffmpeg; False when it cannot open a writer."""
+    import cv2
+
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    if not writer.isOpened():
+        return False
+    try:
+        for f in frames:
+            writer.write(np.ascontiguousarray(f[..., ::-1]))
+    finally:
+        writer.release()
+    return path.is_file() and is_mp4(path)
+
+
+@functools.cache
+def mp4_backend() -> Mp4Backend | None:
+    """The MP4 encoder this machine has offline: ffmpeg or PyAV (H.264, `_video.mp4_encoder`), else
+    OpenCV's `mp4v` writer when it can write a probe file, else None (the page hides its MP4 button)."""
+    from gaffer_diffusion._video import mp4_encoder
+
+    found = mp4_encoder()
+    if found is not None:
+        return found
+    try:
+        import cv2  # noqa: F401
+    except ImportError:
+        return None
+    with tempfile.TemporaryDirectory(prefix="gaffer-mp4-probe-") as tmp:
+        probe = [np.zeros((16, 16, 3), np.uint8), np.full((16, 16, 3), 255, np.uint8)]
+        try:
+            ok = _opencv_mp4(probe, Path(tmp) / "probe.mp4", 2.0)
+        except Exception:  # a broken OpenCV build: no MP4, the GIF stays
+            logger.info("OpenCV cannot write MP4 here", exc_info=True)
+            return None
+    return "opencv" if ok else None
+
+
+def _even(frame: np.ndarray) -> np.ndarray:
+    h, w = frame.shape[:2]  # yuv420p needs even sides: repeat the last row / column
+    return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+
+
+def write_mp4(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
+    """`[H, W, 3|4]` uint8 frames as an MP4 at `path`, written to a sibling and renamed (atomic).
+
+    Raises:
+        InputValueError: no frames.
+        MissingDependencyError: no MP4 encoder (`MP4_UNAVAILABLE`), or the encoder failed.
+    """
+    if not frames:
+        raise InputValueError("No frames to write: ask for a turntable of 2 or more frames.")
+    backend = mp4_backend()
+    if backend is None:
+        raise MissingDependencyError(MP4_UNAVAILABLE)
+    even = [_even(on_white(np.asarray(f, np.uint8))) for f in frames]
+    tmp = _partial(path)
+    try:
+        if backend == "opencv":
+            if not _opencv_mp4(even, tmp, fps):
+                raise MissingDependencyError("OpenCV could not write the MP4; download the GIF.")
+        else:
+            from gaffer_diffusion._video import write_animation
+
+            written = write_animation(even, tmp.with_suffix(""), fmt="mp4", fps=fps)
+            if written != tmp:
+                os.replace(written, tmp)
+        if not is_mp4(tmp):
+            raise MissingDependencyError(f"The {backend} encoder wrote no MP4; download the GIF.")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
