@@ -10,7 +10,7 @@ import torch
 
 from gaffer_nerf.checkpoint import load_field, save_field
 from gaffer_nerf.configs import (
-    PAPER_RAYS_PER_CELL,
+    RAYS_PER_CELL,
     EarlyStoppingConfig,
     GridSizingConfig,
     RankSelectionConfig,
@@ -50,11 +50,11 @@ def test_footprint_sizing_and_cap() -> None:
         sizing=GridSizingConfig(mode="footprint", max_resolution=20, rays_per_cell=None)
     )
     assert s.final_grid(box, capped) == (20, 20, 20)
-    # the iteration budget: 120 x 512 rays at the paper's 1365 rays per plane cell train ~6.7^3
+    # the iteration budget: 120 x 512 rays at 768 rays per plane cell train ~8.9^3
     budget = quick_fit_config(sizing=GridSizingConfig(mode="footprint", min_resolution=4))
-    assert budget_side(budget) == pytest.approx(math.sqrt(120 * 512 / PAPER_RAYS_PER_CELL))
-    assert s.final_grid(box, budget) == (6, 6, 6)  # voxels_to_grid(round(6.7**3)) on the box
-    longer = dataclasses.replace(budget, iterations=120 * 128)  # ~76 per axis: the footprint binds
+    assert budget_side(budget) == pytest.approx(math.sqrt(120 * 512 / RAYS_PER_CELL))
+    assert s.final_grid(box, budget) == voxels_to_grid(round(budget_side(budget) ** 3), box)
+    longer = dataclasses.replace(budget, iterations=120 * 128)  # ~100 per axis: the footprint binds
     assert s.final_grid(box, longer) == grid
     fixed = choose_grid_sizing(cams, box, GridSizingConfig())
     assert fixed.voxel_size is None and fixed.final_grid(box, cfg) == voxels_to_grid(24**3, box)

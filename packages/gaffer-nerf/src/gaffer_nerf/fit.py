@@ -394,10 +394,15 @@ def _fit_once(
             if sizing.mode == "fixed":
                 target = voxels_to_grid(voxel_schedule[k], field.aabb)
             else:
+                # the fixed mode's schedule towards the grid the rule picks, ending exactly on it
                 final = sizing.final_voxels(field.aabb, config)
-                start = math.prod(history[0][1])
-                n_vox = log_spaced_voxels(min(start, final), final, n_up)[k]
-                target = voxels_to_grid(n_vox, field.aabb)
+                n_vox = log_spaced_voxels(min(config.initial_voxels, final), final, n_up)[k]
+                last = k == n_up - 1
+                target = (
+                    sizing.final_grid(field.aabb, config)
+                    if last
+                    else voxels_to_grid(n_vox, field.aabb)
+                )
             field.upsample(target)
             history.append((it, field.grid_size))
             optimizer = _optimizer(field, config)  # lr reset, as TensoRF's lr_upsample_reset

@@ -13,10 +13,10 @@ object of side 1) that is about 0.0054-0.0079 world units, i.e. ~130-190 voxels 
 instead of the ~300 the fixed 300^3 grid reaches after the box shrinks to the object.
 
 The iteration budget caps it as well (`GridSizingConfig.rays_per_cell`): a fit of I iterations of B
-rays can train at most R = sqrt(I B / rays_per_cell) cells per factor-plane axis, with the paper's own
-ratio (30K x 4096 rays on 300^2 cells) as the default, so the paper's schedule keeps 300^3 while a
-300-iteration CPU fit gets ~15^3 rather than the 45^3 its pixels could resolve (which it cannot train
-in that time: the benchmark's fixed-grid curve peaks at ~16^3 for that budget).
+rays can train at most R = sqrt(I B / rays_per_cell) cells per factor-plane axis. The default (768)
+puts a 300-iteration CPU fit at 20^3, the peak of the fixed-grid curve for that budget, rather than the
+45^3 its pixels could resolve (which it cannot train in that time: 2.3 dB lower and twice the time in
+`benchmarks/bench_nerf_sizing.py`); the paper's schedule allows more than its own 300^3 cap.
 """
 
 import math
@@ -76,10 +76,10 @@ def budget_side(config: FitConfig) -> float | None:
 
     Example:
         >>> from gaffer_nerf.configs import fit_preset
-        >>> round(budget_side(fit_preset("paper")))  # the paper's schedule keeps its 300^3
-        300
+        >>> round(budget_side(fit_preset("paper")))  # above the paper's 300^3 cap
+        400
         >>> round(budget_side(fit_preset("tiny")), 1)  # 300 iterations of 1024 rays
-        15.0
+        20.0
     """
     per_cell = config.sizing.rays_per_cell
     if per_cell is None:
