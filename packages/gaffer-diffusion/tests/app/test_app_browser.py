@@ -1,7 +1,8 @@
 """The app in a real browser: Debian's Chromium, headless, driven by Selenium.
 
-Uploads the example photo, turns the azimuth slider (the E_L preview must change), clicks Relight
-and waits for the relit image; saves a screenshot (`GAFFER_TEST_ARTIFACTS`, else the test's tmp
+Uploads an RGB photo (the example object on a gradient, no alpha), waits for the automatic mask to
+appear in the mask field, turns the azimuth slider (the E_L preview must change), clicks Relight and
+waits for the full-size relit photo; saves a screenshot (`GAFFER_TEST_ARTIFACTS`, else the test's tmp
 folder). Skips, saying why, where Chromium or its driver is missing; `nox -s tests` installs both.
 """
 
@@ -11,7 +12,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from PIL import Image
 
 pytestmark = pytest.mark.slow
 
@@ -47,7 +50,7 @@ def browser(tmp_path: Path) -> Any:
         "--no-sandbox",  # CI runs as root
         "--disable-dev-shm-usage",
         "--disable-gpu",
-        "--window-size=1280,1500",
+        "--window-size=1280,1650",
         "--hide-scrollbars",
         f"--user-data-dir={tmp_path / 'chromium-profile'}",
     ):
@@ -63,15 +66,29 @@ def _artifact_dir(tmp_path: Path) -> Path:
     return out
 
 
+def _rgb_photo(out: Path) -> Path:
+    """The shipped example object, enlarged, on an opaque gradient: a 360x240 photo without alpha."""
+    from gaffer_diffusion.pretrained import example_dataset_path
+
+    rgba = sorted((example_dataset_path() / "objects").iterdir())[0] / "lit" / "000_000.png"
+    obj = Image.open(rgba).convert("RGBA").resize((200, 200), Image.Resampling.LANCZOS)
+    grad = np.zeros((240, 360, 4), np.uint8)
+    grad[..., 0] = np.linspace(60, 150, 360)[None, :].astype(np.uint8)
+    grad[..., 1] = np.linspace(90, 130, 240)[:, None].astype(np.uint8)
+    grad[..., 2], grad[..., 3] = 150, 255
+    canvas = Image.fromarray(grad)
+    canvas.alpha_composite(obj, (80, 20))
+    canvas.convert("RGB").save(out, quality=95)
+    return out
+
+
 def test_relight_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> None:
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
     from selenium.webdriver.support import expected_conditions as ec
     from selenium.webdriver.support.ui import WebDriverWait
 
-    from gaffer_diffusion.pretrained import example_dataset_path
-
-    photo = sorted((example_dataset_path() / "objects").iterdir())[0] / "lit" / "000_000.png"
+    photo = _rgb_photo(tmp_path / "photo.jpg")
     wait = WebDriverWait(browser, WAIT_S)
     t0 = time.perf_counter()
     browser.get(app_server.url)
@@ -89,6 +106,7 @@ def test_relight_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> 
     )
     upload.send_keys(str(photo))
     wait.until(src("#photo img"))
+    wait.until(src("#mask img"))  # no alpha: GrabCut's mask is shown, replaceable by an upload
     slider = wait.until(ec.element_to_be_clickable((By.CSS_SELECTOR, "#azimuth input[type=range]")))
     slider.send_keys(*([Keys.ARROW_RIGHT] * 45))
     wait.until(lambda d: (src("#ldr img")(d) or first_ldr) != first_ldr)
@@ -99,6 +117,8 @@ def test_relight_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> 
     )
     seconds = time.perf_counter() - t0
     assert status and relit
+    text = browser.find_element(By.CSS_SELECTOR, "#status").text
+    assert "360x240" in text and "GrabCut" in text, text
     assert int(slider.get_attribute("value")) == 45
     shot = _artifact_dir(tmp_path) / "app_browser.png"
     browser.save_screenshot(str(shot))

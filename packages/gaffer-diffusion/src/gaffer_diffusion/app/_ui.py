@@ -5,6 +5,7 @@ Gradio reads both when it is imported.
 """
 
 import functools
+import hashlib
 import html
 import itertools
 import logging
@@ -106,6 +107,11 @@ class _Jobs:
         return path
 
 
+def _digest(path: str | Path) -> str:
+    """SHA-256 of a file (Gradio keeps an upload's bytes, so the automatic mask is recognised)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def _save_png(path: Path, arr: np.ndarray) -> str:
     Image.fromarray(arr).save(path)
     return str(path)
@@ -205,21 +211,24 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             )
         return text
 
-    def _mask_text(prepared: PhotoInput) -> str:
-        return f" {AUTO_MASK_NOTE}" if prepared.auto_mask else ""
+    def _mask_text(prepared: PhotoInput, mask: str | None, auto_digest: str) -> str:
+        # the automatic mask: computed here (no mask), or the one put in the mask field, unchanged
+        shown_auto = bool(mask and auto_digest) and _digest(mask) == auto_digest
+        return f" {AUTO_MASK_NOTE}" if prepared.auto_mask or shown_auto else ""
 
     @_shown_in_page
-    def auto_mask(photo: str | None, mask: str | None, mask_is_auto: bool) -> tuple[Any, ...]:
-        """A new photo without alpha gets GrabCut's mask in the mask field (a user's upload stays)."""
-        if not photo:
-            return (None if mask_is_auto else gr.skip()), False, ""
-        if engine.has_alpha(photo):
-            return (None if mask_is_auto else gr.skip()), False, ""
-        if mask and not mask_is_auto:
-            return gr.skip(), False, ""
+    def auto_mask(photo: str | None, mask: str | None, auto_digest: str) -> tuple[Any, ...]:
+        """A new photo without alpha gets GrabCut's mask in the mask field (a user's upload stays).
+
+        The session remembers the automatic mask's SHA-256, so that it is told from a user's mask.
+        """
+        if not photo or engine.has_alpha(photo):
+            return (None if auto_digest else gr.skip()), "", ""
+        if mask and not auto_digest:
+            return gr.skip(), "", ""
         out = jobs.new()
         path = _save_png(out / "auto_mask.png", engine.auto_mask(photo))
-        return path, True, AUTO_MASK_NOTE
+        return path, _digest(path), AUTO_MASK_NOTE
 
     @_shown_in_page
     def relight(
@@ -234,6 +243,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         steps: float | None,
         seed: float | None,
         output_size: str | None = "photo",
+        auto_digest: str = "",
     ) -> tuple[Any, ...]:
         prepared, result, out, seconds = _run(
             model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, output_size, 0
@@ -241,7 +251,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         relit = _save_png(out / "relit.png", result.frames[0])
         status = (
             f"Relit with {result.model} ({result.steps} step(s)) in {seconds:.1f} s, at "
-            f"{_size_text(prepared, result)}.{_mask_text(prepared)}"
+            f"{_size_text(prepared, result)}.{_mask_text(prepared, mask, auto_digest)}"
         )
         return (
             _save_png(out / "input.png", result.input_rgb),
@@ -269,6 +279,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         output_size: str | None,
         frames: float,
         fps: float,
+        auto_digest: str = "",
     ) -> tuple[Any, ...]:
         n = int(frames)
         if n < 2:
@@ -279,7 +290,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         gif = str(write_gif(out / "turntable.gif", result.frames, float(fps)))
         status = (
             f"Turntable of {n} frames with {result.model} in {seconds:.1f} s, at "
-            f"{_size_text(prepared, result)}.{_mask_text(prepared)}"
+            f"{_size_text(prepared, result)}.{_mask_text(prepared, mask, auto_digest)}"
         )
         mp4_button: Any = gr.skip()
         if mp4 is not None:
@@ -315,7 +326,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     elem_id="mask",
                     height=160,
                 )
-                mask_is_auto = gr.State(False)
+                mask_is_auto = gr.State("")  # SHA-256 of the automatic mask shown, or ""
                 model = gr.Dropdown(choices=labels, value=labels[0], label="Model", elem_id="model")
             with gr.Column():
                 hdri = gr.Dropdown(
@@ -475,12 +486,12 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             concurrency_limit=1,
         )
         # a mask the user uploads replaces the automatic one and is kept for the next photo
-        mask.upload(lambda: False, None, mask_is_auto, api_visibility="private")
+        mask.upload(lambda: "", None, mask_is_auto, api_visibility="private")
         job_inputs = [model, photo, mask, hdri, envfile, az, el, spin, steps, seed, output_size]
         # one sampling job at a time across both buttons (and the API); others wait in the queue
         relight_btn.click(
             relight,
-            job_inputs,
+            [*job_inputs, mask_is_auto],
             [prepared, prepared_mask, relit, relit_dl, status],
             api_name="relight",
             concurrency_id="model",
@@ -488,7 +499,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         )
         turntable_btn.click(
             turntable,
-            [*job_inputs, frames, fps],
+            [*job_inputs, frames, fps, mask_is_auto],
             [spin_gif, gif_dl, mp4_dl, status],
             api_name="turntable",
             concurrency_id="model",
