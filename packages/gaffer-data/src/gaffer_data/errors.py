@@ -5,13 +5,11 @@ builtin (`ValueError`, `OSError`, `ImportError`, `RuntimeError`) so callers that
 catch them sensibly. Errors that reach the command line implement `diagnostics()`.
 """
 
+from gaffer_envmap.errors import GafferError
 
-class GafferDataError(Exception):
-    """Base class of every gaffer-data error."""
 
-    def diagnostics(self) -> str:
-        """A human-readable explanation for the command line (the message by default)."""
-        return str(self)
+class GafferDataError(GafferError):
+    """Base class of every gaffer-data error (`diagnostics()` comes from `gaffer_envmap.errors.GafferError`)."""
 
 
 class SchemaVersionError(GafferDataError, ValueError):

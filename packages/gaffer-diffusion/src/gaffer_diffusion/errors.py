@@ -7,28 +7,24 @@ know gaffer still catch them sensibly. Errors meant for the command line impleme
 
 from collections.abc import Sequence
 
+from gaffer_envmap.errors import GafferError
+from gaffer_envmap.errors import ShapeError as EnvmapShapeError
 
-class GafferDiffusionError(Exception):
-    """Base class of every gaffer-diffusion error."""
 
-    def diagnostics(self) -> str:
-        """A multi-line, human-readable explanation for the command line."""
-        return str(self)
+class GafferDiffusionError(GafferError):
+    """Base class of every gaffer-diffusion error (`diagnostics()` comes from `gaffer_envmap.errors.GafferError`)."""
 
 
 class ConfigError(GafferDiffusionError, ValueError):
     """A configuration value is invalid or two values are inconsistent."""
 
 
-class ShapeError(GafferDiffusionError, ValueError):
-    """A tensor has the wrong shape. Carries `argument`, `actual` and `expected` (as strings)."""
+class ShapeError(GafferDiffusionError, EnvmapShapeError):
+    """A tensor has the wrong shape. Carries `argument`, `actual` and `expected` (as strings).
 
-    def __init__(self, argument: str, actual: object, expected: str, fix: str = "") -> None:
-        self.argument = argument
-        self.actual = str(actual)
-        self.expected = expected
-        msg = f"`{argument}` has shape {self.actual}, expected {expected}."
-        super().__init__(f"{msg} {fix}".strip())
+    Defined once, in `gaffer_envmap.errors.ShapeError` (message and fields); this subclass adds the
+    gaffer-diffusion base, so `except GafferDiffusionError` and `except gaffer_envmap.ShapeError` both catch it.
+    """
 
 
 class InputValueError(GafferDiffusionError, ValueError):

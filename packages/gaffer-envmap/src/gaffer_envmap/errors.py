@@ -5,18 +5,33 @@ Every error names the argument at fault and says how to fix it. Concrete errors 
 """
 
 
-class GafferEnvmapError(Exception):
+class GafferError(Exception):
+    """Base class of every gaffer error, in all four packages (defined once, here in the leaf).
+
+    `except gaffer_envmap.errors.GafferError` catches what any gaffer package raises on purpose.
+    """
+
+    def diagnostics(self) -> str:
+        """A human-readable explanation for the command line (the message by default)."""
+        return str(self)
+
+
+class GafferEnvmapError(GafferError):
     """Base class of every gaffer-envmap error."""
 
 
 class ShapeError(GafferEnvmapError, ValueError):
-    """An array has the wrong shape. Carries `actual` and `expected` (as strings)."""
+    """An array has the wrong shape. Carries `argument`, `actual` and `expected` (as strings).
+
+    The one shape error of gaffer: gaffer-data's, gaffer-diffusion's and gaffer-nerf's `ShapeError`
+    subclass it (and their own base), so `except gaffer_envmap.ShapeError` catches all of them.
+    """
 
     def __init__(self, argument: str, actual: object, expected: str, fix: str = "") -> None:
         self.argument = argument
         self.actual = str(actual)
         self.expected = expected
-        msg = f"`{argument}` has shape {actual}, expected {expected}."
+        msg = f"`{argument}` has shape {self.actual}, expected {expected}."
         super().__init__(f"{msg} {fix}".strip())
 
 

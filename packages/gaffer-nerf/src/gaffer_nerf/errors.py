@@ -5,28 +5,24 @@ builtin (`ValueError`, `FileNotFoundError`, `ImportError`, `RuntimeError`) so ca
 gaffer still catch them. Errors meant for the command line implement `diagnostics()`.
 """
 
+from gaffer_envmap.errors import GafferError
+from gaffer_envmap.errors import ShapeError as EnvmapShapeError
 
-class GafferNerfError(Exception):
-    """Base class of every gaffer-nerf error."""
 
-    def diagnostics(self) -> str:
-        """A human-readable explanation for the command line."""
-        return str(self)
+class GafferNerfError(GafferError):
+    """Base class of every gaffer-nerf error (`diagnostics()` comes from `gaffer_envmap.errors.GafferError`)."""
 
 
 class ConfigError(GafferNerfError, ValueError):
     """A configuration value is invalid or two values are inconsistent."""
 
 
-class ShapeError(GafferNerfError, ValueError):
-    """A tensor has the wrong shape. Carries `argument`, `actual` and `expected` (as strings)."""
+class ShapeError(GafferNerfError, EnvmapShapeError):
+    """A tensor has the wrong shape. Carries `argument`, `actual` and `expected` (as strings).
 
-    def __init__(self, argument: str, actual: object, expected: str, fix: str = "") -> None:
-        self.argument = argument
-        self.actual = str(actual)
-        self.expected = expected
-        msg = f"`{argument}` has shape {self.actual}, expected {expected}."
-        super().__init__(f"{msg} {fix}".strip())
+    Defined once, in `gaffer_envmap.errors.ShapeError` (message and fields); this subclass adds the
+    gaffer-nerf base, so `except GafferNerfError` and `except gaffer_envmap.ShapeError` both catch it.
+    """
 
 
 class CameraError(GafferNerfError, ValueError):
