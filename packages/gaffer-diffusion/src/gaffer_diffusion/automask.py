@@ -102,7 +102,7 @@ def grabcut_mask(rgb_u8: np.ndarray, *, iterations: int = GRABCUT_ITERATIONS) ->
     seed[:b], seed[-b:], seed[:, :b], seed[:, -b:] = (cv2.GC_BGD,) * 4
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)
-    cv2.grabCut(bgr, seed, None, bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
+    cv2.grabCut(bgr, seed, (0, 0, 0, 0), bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     fg = ((seed == cv2.GC_FGD) | (seed == cv2.GC_PR_FGD)).astype(np.uint8)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
     opened = cv2.morphologyEx(fg, cv2.MORPH_OPEN, kernel)  # break thin bridges to the clutter
@@ -124,7 +124,7 @@ def grabcut_mask(rgb_u8: np.ndarray, *, iterations: int = GRABCUT_ITERATIONS) ->
     flood = (1 - fg).astype(np.uint8)
     ff = np.zeros((sh + 2, sw + 2), np.uint8)
     flood_img = flood.copy()
-    cv2.floodFill(flood_img, ff, (0, 0), 2)
+    cv2.floodFill(flood_img, ff, (0, 0), (2,))
     fg = np.where(flood_img == 2, 0, 1).astype(np.float32)
     full = cv2.resize(fg, (w, h), interpolation=cv2.INTER_LINEAR)
     # edge refinement at full size: a guided filter steered by the photo (soft alpha on real edges)
@@ -144,7 +144,10 @@ def sam_mask(rgb_u8: np.ndarray, checkpoint: str | Path) -> np.ndarray:
         InputValueError: the checkpoint file is missing.
     """
     try:
-        from segment_anything import SamPredictor, sam_model_registry
+        from segment_anything import (  # pyright: ignore[reportMissingImports]
+            SamPredictor,
+            sam_model_registry,
+        )
     except ImportError as exc:
         raise MissingDependencyError(
             "`--sam-checkpoint` needs segment-anything, which is not installed: "

@@ -410,7 +410,8 @@ def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGaffe
         return load_model(None).model  # logs that (and where from) it uses gaffer-tiny
     if (checkpoint / MANIFEST_NAME).is_file():
         return load_pretrained(checkpoint).model
-    _check_checkpoint_args(checkpoint, base_model)
+    if base_model is None:
+        raise _base_model_error(checkpoint)
     result = load_authors_release(checkpoint, base_model)
     logger.info("%s", result.report.summary())
     return result.model
@@ -420,7 +421,11 @@ def _check_checkpoint_args(checkpoint: Path | None, base_model: Path | None) -> 
     """The checkpoint flags' consistency, checked before any input is read or weight loaded."""
     if checkpoint is None or (checkpoint / MANIFEST_NAME).is_file() or base_model is not None:
         return
-    raise ConfigError(
+    raise _base_model_error(checkpoint)
+
+
+def _base_model_error(checkpoint: Path) -> ConfigError:
+    return ConfigError(
         f"`--checkpoint` {checkpoint} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}), so "
         "it is taken as the authors' release, which needs `--base-model DIR` (a local Zero-1-to-3 XL "
         "diffusers folder with vae/, image_encoder/, scheduler/, unet/config.json)."
