@@ -239,6 +239,7 @@ def _env(tmp_path: Path) -> Path:
     from gaffer_envmap import EnvironmentMap, write_envmap
 
     env = np.full((16, 32, 3), 0.3, np.float32)
+    env[..., 0] += np.linspace(0.0, 0.6, 32, dtype=np.float32)  # redder towards one side
     env[4, 8] = 50.0
     write_envmap(tmp_path / "env.exr", EnvironmentMap(radiance_linear=env))
     return tmp_path / "env.exr"
@@ -277,6 +278,10 @@ def test_cli_relight_returns_the_photo_at_its_size(tmp_path, model_dir, capsys) 
     assert main([*args, "--out", str(tmp_path / "b.png"), "--background", "envmap"]) == 0
     back = np.asarray(Image.open(tmp_path / "b.png"))
     assert back.shape == (90, 130, 3) and not np.array_equal(back[~disc], src[~disc])
+    spin = ["--background", "envmap", "--turntable", "2", "--video", "gif"]
+    assert main([*args, "--out", str(tmp_path / "t.png"), *spin]) == 0
+    f0, f1 = (np.asarray(Image.open(tmp_path / f"t_{k:03d}.png"), np.int16) for k in (0, 1))
+    assert f0.shape == (90, 130, 3) and np.abs(f0 - f1)[~disc].max() > 0  # the backdrop turns
 
 
 def test_cli_mask_auto_writes_the_mask_and_says_it_is_a_fallback(
