@@ -17,6 +17,9 @@ from torch import Tensor, nn
 
 
 class _ScalingLayer(nn.Module):
+    shift: Tensor  # buffers, typed for nn.Module.__getattr__ (which says Tensor | Module)
+    scale: Tensor
+
     def __init__(self) -> None:
         super().__init__()
         self.register_buffer("shift", torch.tensor([-0.030, -0.088, -0.188]).view(1, 3, 1, 1))
@@ -28,6 +31,8 @@ class _ScalingLayer(nn.Module):
 
 class _BlurPool(nn.Module):
     """Reflect-pad by 2, then a stride-2 depthwise [1, 2, 1] x [1, 2, 1] / 16 blur (pad_more=True)."""
+
+    filt: Tensor  # a buffer, typed for nn.Module.__getattr__ (which says Tensor | Module)
 
     def __init__(self, channels: int) -> None:
         super().__init__()

@@ -277,7 +277,7 @@ def _check_base(base: Path, exp: ReleaseExpectations, out: list[Finding]) -> dic
 def _check_unet_keys(
     weights: Path, unet_cfg: dict[str, Any], exp: ReleaseExpectations, out: list[Finding]
 ) -> None:
-    from diffusers import UNet2DConditionModel
+    from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 
     try:
         shapes = _tensor_shapes(weights)

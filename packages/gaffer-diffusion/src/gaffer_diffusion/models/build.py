@@ -4,7 +4,9 @@ import dataclasses
 from typing import Any
 
 import torch
-from diffusers import AutoencoderKL, DDIMScheduler, UNet2DConditionModel
+from diffusers.models.autoencoders.autoencoder_kl import AutoencoderKL
+from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
+from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from transformers import CLIPVisionConfig, CLIPVisionModelWithProjection
 
 from gaffer_diffusion.configs import (
@@ -98,12 +100,12 @@ def config_from_modules(
     if isinstance(vae, PixelAutoencoder):
         vae_config = VAEConfig(
             kind="pixel",
-            scaling_factor=vae.config.scaling_factor,
-            sample_size=vae.config.sample_size,
+            scaling_factor=vae.config["scaling_factor"],
+            sample_size=vae.config["sample_size"],
         )
     else:
         vae_cfg = _pick(VAEConfig, dict(vae.config))
-        vae_cfg["block_out_channels"] = tuple(vae.config.block_out_channels)
+        vae_cfg["block_out_channels"] = tuple(vae.config["block_out_channels"])
         vae_cfg.pop("kind", None)
         vae_config = VAEConfig(**vae_cfg)
     unet_config = UNetConfig(**_pick(UNetConfig, dict(unet.config)))

@@ -1,15 +1,18 @@
 """`NeuralGafferModel`: the four parts of the relighting model, held together with their config."""
 
 from dataclasses import dataclass
+from typing import cast
 
 import torch
-from diffusers import AutoencoderKL, UNet2DConditionModel
+from diffusers.models.autoencoders.autoencoder_kl import AutoencoderKL
+from diffusers.models.autoencoders.vae import DecoderOutput, DiagonalGaussianDistribution
+from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 from jaxtyping import Float
 from torch import Tensor
 from transformers import CLIPVisionModelWithProjection
 
 from gaffer_diffusion.configs import ModelConfig
-from gaffer_diffusion.models.pixel import PixelAutoencoder
+from gaffer_diffusion.models.pixel import PixelAutoencoder, PixelPosterior
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,3 +78,23 @@ class NeuralGafferModel:
     def dtype(self) -> torch.dtype:
         """Dtype of the UNet's first parameter."""
         return next(self.unet.parameters()).dtype
+
+
+def vae_posterior(
+    vae: AutoencoderKL | PixelAutoencoder, x: Float[Tensor, "N 3 H W"]
+) -> DiagonalGaussianDistribution | PixelPosterior:
+    """`vae.encode(x).latent_dist`: the posterior over the latents of images `x` in [-1, 1]."""
+    out = vae.encode(x)
+    # diffusers' encode returns the bare `(posterior,)` tuple only with return_dict=False
+    return out[0] if isinstance(out, tuple) else out.latent_dist
+
+
+def vae_decode(
+    vae: AutoencoderKL | PixelAutoencoder, z: Float[Tensor, "N 4 h w"]
+) -> Float[Tensor, "N 3 H W"]:
+    """`vae.decode(z).sample`: images in [-1, 1] from raw (unscaled) latents."""
+    if isinstance(vae, PixelAutoencoder):
+        return vae.decode(z).sample
+    # diffusers annotates `z` as the legacy `torch.FloatTensor` and the result as `DecoderOutput |
+    # FloatTensor`; decode takes any float Tensor and, with return_dict=True, returns a DecoderOutput
+    return cast(DecoderOutput, vae.decode(cast(torch.FloatTensor, z))).sample

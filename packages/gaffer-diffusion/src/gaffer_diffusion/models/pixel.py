@@ -83,6 +83,8 @@ class PixelAutoencoder(torch.nn.Module):
         True
     """
 
+    luma: Tensor  # a buffer, typed for nn.Module.__getattr__ (which says Tensor | Module)
+
     def __init__(self, *, sample_size: int = 64, scaling_factor: float = 1.0) -> None:
         super().__init__()
         self.anchor = torch.nn.Parameter(torch.zeros(0), requires_grad=False)

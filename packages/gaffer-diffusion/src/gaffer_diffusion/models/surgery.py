@@ -1,7 +1,7 @@
 """Input-layer surgery: Zero123's 8-channel `conv_in` -> Neural Gaffer's 16 channels."""
 
 import torch
-from diffusers import UNet2DConditionModel
+from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 
 from gaffer_diffusion.errors import ConfigError
 

@@ -7,7 +7,9 @@ steps, epsilon prediction). DDIM with 50 "leading" steps and eta 0 is the paper'
 
 from typing import Literal, assert_never
 
-from diffusers import DDIMScheduler, DPMSolverMultistepScheduler, UniPCMultistepScheduler
+from diffusers.schedulers.scheduling_ddim import DDIMScheduler
+from diffusers.schedulers.scheduling_dpmsolver_multistep import DPMSolverMultistepScheduler
+from diffusers.schedulers.scheduling_unipc_multistep import UniPCMultistepScheduler
 from diffusers.schedulers.scheduling_utils import SchedulerMixin
 
 from gaffer_diffusion.configs import SchedulerConfig

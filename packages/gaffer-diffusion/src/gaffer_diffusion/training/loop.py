@@ -163,7 +163,7 @@ class _Trainer:
         self.model = model
         self.device = accelerator.device
         self.scheduler = build_scheduler(model.config.scheduler)
-        n_train = int(self.scheduler.config.num_train_timesteps)
+        n_train = int(self.scheduler.config["num_train_timesteps"])
         if config.train.timestep_range[1] >= n_train:
             raise ConfigError(
                 f"`train.timestep_range` is {list(config.train.timestep_range)}; the model's schedule "
