@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -162,6 +162,7 @@ class ObjectResult:
     image_seconds: tuple[float, ...]
 
 
+@runtime_checkable  # so the test-time type hook (beartype) can check `dispatch=` arguments
 class Dispatch(Protocol):
     """Runs `render_object` for each plan and yields the results as objects finish (any order).
 
