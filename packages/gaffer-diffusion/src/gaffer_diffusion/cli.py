@@ -75,6 +75,7 @@ from gaffer_diffusion.photo import (
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 from gaffer_diffusion.preprocess import PrepareCompat
 from gaffer_diffusion.schedulers import SCHEDULERS
+from gaffer_envmap.errors import GafferError
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -131,7 +132,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     light = r.add_argument_group("lighting: --envmap with a pose, or pre-encoded --ldr/--hdr maps")
     light.add_argument(
-        "--envmap", type=Path, help="equirectangular HDR map (.exr/.hdr), Blender z-up"
+        "--envmap",
+        type=_envmap_path,
+        help="equirectangular HDR map (.exr/.hdr), Blender z-up, or the name of a bundled CC0 HDRI "
+        "(city, courtyard, forest, interior, night, studio, sunrise, sunset)",
     )
     light.add_argument(
         "--envmaps",
@@ -679,6 +683,16 @@ def _finish(
             raise ConfigError(f"`--output-size` is {args.output_size!r}; expected input or model.")
 
 
+def _envmap_path(value: str) -> Path:
+    """`--envmap`: a file, or the name of an HDRI bundled with gaffer-envmap (issue 17)."""
+    path = Path(value)
+    if path.exists() or path.suffix:
+        return path
+    from gaffer_envmap.bundled import bundled_hdris
+
+    return bundled_hdris().get(value, path)
+
+
 def _relight(args: argparse.Namespace) -> int:
     if args.turntable < 0 or args.batch_size < 1:
         raise ConfigError("`--turntable` must be >= 0 and `--batch-size` >= 1.")
@@ -1129,7 +1143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 from gaffer_diffusion.app import run_app  # Gradio loads only here
 
                 return run_app(args)
-    except GafferDiffusionError as exc:
+    except GafferError as exc:  # any gaffer package's error (an unreadable EXR is also an OSError)
         print(f"error: {exc.diagnostics()}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
