@@ -280,9 +280,13 @@ def _parser() -> argparse.ArgumentParser:
         help="bundled HDRI the turntable spins (default: the one whose light changes most with the spin)",
     )
     d.add_argument("--fps", type=float, default=12.0, help="turntable GIF frames per second")
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=int, default=0, help="sampling seed (0)")
     d.add_argument("--batch-size", type=int, default=8, help="images per sampling call")
-    d.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    d.add_argument(
+        "--device",
+        default="cuda" if torch.cuda.is_available() else "cpu",
+        help="torch device (default: cuda when available, else cpu)",
+    )
     d.add_argument(
         "--threads",
         type=int,
@@ -320,9 +324,11 @@ def _parser() -> argparse.ArgumentParser:
     i = sub.add_parser(
         "init-random", help="save a random-weight model in our format (demos, tests)"
     )
-    i.add_argument("--preset", choices=PRESETS, default="tiny")
-    i.add_argument("--seed", type=int, default=0)
-    i.add_argument("--out", type=Path, required=True)
+    i.add_argument(
+        "--preset", choices=PRESETS, default="tiny", help="model shapes to build (default: tiny)"
+    )
+    i.add_argument("--seed", type=int, default=0, help="seed of the random weights (0)")
+    i.add_argument("--out", type=Path, required=True, help="model folder to write")
 
     x = sub.add_parser(
         "export",
@@ -353,8 +359,13 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
     p.add_argument(
         "--guidance", type=float, help="CFG scale (default: 3, the paper's; gaffer-tiny: 1)"
     )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--scheduler", choices=SCHEDULERS, default="ddim")
+    p.add_argument("--seed", type=int, default=0, help="sampling seed: item i uses seed + i (0)")
+    p.add_argument(
+        "--scheduler",
+        choices=SCHEDULERS,
+        default="ddim",
+        help="sampler (default: ddim, the paper's)",
+    )
     p.add_argument(
         "--average-samples",
         type=int,
@@ -370,8 +381,17 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
         "default: off, gaffer-tiny: its model card's setting)",
     )
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
-    p.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    p.add_argument("--dtype", choices=("float32", "float16", "bfloat16"), default="float32")
+    p.add_argument(
+        "--device",
+        default="cuda" if torch.cuda.is_available() else "cpu",
+        help="torch device (default: cuda when available, else cpu)",
+    )
+    p.add_argument(
+        "--dtype",
+        choices=("float32", "float16", "bfloat16"),
+        default="float32",
+        help="weights' precision (default: float32)",
+    )
     p.add_argument(
         "--autocast",
         action=argparse.BooleanOptionalAction,

@@ -54,12 +54,23 @@ def _parser() -> argparse.ArgumentParser:
     f = sub.add_parser("fit", help="fit a TensoRF field to the input-lighting views")
     f.add_argument("data", type=Path, help="multi-view folder with transforms_train.json")
     f.add_argument("--out", type=Path, required=True, help="output field folder")
-    f.add_argument("--preset", choices=("paper", "tiny"), default="paper")
+    f.add_argument(
+        "--preset",
+        choices=("paper", "tiny"),
+        default="paper",
+        help="paper: TensoRF's schedule (30K iterations x 4096 rays); tiny: a seconds-long smoke fit",
+    )
     f.add_argument("--iterations", type=int, help="override the preset's iteration count")
     f.add_argument("--batch-rays", type=int, help="override the rays per step")
     f.add_argument("--lighting-index", type=int, default=0, help="gaffer-data lighting to fit (0)")
     f.add_argument("--plain", action="store_true", help="NeRF-Synthetic folder: load file_path")
-    f.add_argument("--sizing", choices=("fixed", "footprint"), default="fixed")
+    f.add_argument(
+        "--sizing",
+        choices=("fixed", "footprint"),
+        default="fixed",
+        help="grid size: the preset's fixed one, or chosen from the cameras' pixel footprint and "
+        "capped by the iteration budget (default: fixed)",
+    )
     f.add_argument("--early-stopping", action="store_true", help="stop on a held-out PSNR plateau")
     f.add_argument(
         "--rank-selection",
@@ -76,7 +87,7 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument(
         "--rank-tolerance", type=float, metavar="DB", help="gain a larger rung must beat (0.25)"
     )
-    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--seed", type=int, default=0, help="seed of the ray batches and init (0)")
 
     r = sub.add_parser("relight", help="relight a fitted field under a target lighting")
     r.add_argument("field", type=Path, help="field folder from `fit`")
@@ -104,11 +115,27 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
     r.add_argument("--diffusion-preset", choices=("tiny",), help="random tiny model (smoke tests)")
     r.add_argument("--out", type=Path, required=True, help="output folder (relit field + report)")
-    r.add_argument("--preset", choices=("paper", "tiny"), default="paper")
-    r.add_argument("--ablation", choices=ABLATIONS, default="full")
-    r.add_argument("--t-schedule", choices=("exponential", "authors"), default="exponential")
-    r.add_argument("--stage1-iterations", type=int)
-    r.add_argument("--stage2-iterations", type=int)
+    r.add_argument(
+        "--preset",
+        choices=("paper", "tiny"),
+        default="paper",
+        help="paper: Stage 1 2,500 + Stage 2 500 iterations (section 3.4); tiny: a smoke run",
+    )
+    r.add_argument(
+        "--ablation",
+        choices=ABLATIONS,
+        default="full",
+        help="paper section 4.4: full, without Stage 1 or 2, SDS in Stage 2, or SDS only (default: full)",
+    )
+    r.add_argument(
+        "--t-schedule",
+        choices=("exponential", "authors"),
+        default="exponential",
+        help="Stage 2 noise level t*: the paper's exponential 0.4 -> 0.05, or the authors' "
+        "effectively constant one (default: exponential)",
+    )
+    r.add_argument("--stage1-iterations", type=int, help="override the preset's Stage 1 iterations")
+    r.add_argument("--stage2-iterations", type=int, help="override the preset's Stage 2 iterations")
     r.add_argument(
         "--steps",
         type=int,
@@ -140,9 +167,11 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--lpips-backbone", type=Path, help="torchvision AlexNet weights (std LPIPS)")
 
     d = sub.add_parser("render", help="render a field at the poses of a split")
-    d.add_argument("field", type=Path)
-    d.add_argument("--data", type=Path, required=True)
-    d.add_argument("--split", choices=("train", "test"), default="test")
+    d.add_argument("field", type=Path, help="field folder from `fit` or `relight`")
+    d.add_argument("--data", type=Path, required=True, help="the multi-view folder (cameras)")
+    d.add_argument(
+        "--split", choices=("train", "test"), default="test", help="which cameras (default: test)"
+    )
     d.add_argument("--out", type=Path, required=True, help="folder for the PNGs")
     d.add_argument(
         "--orbit",
@@ -155,17 +184,25 @@ def _parser() -> argparse.ArgumentParser:
     e = sub.add_parser(
         "evaluate", help="score renders against ground truth under the target lighting"
     )
-    e.add_argument("field", type=Path)
-    e.add_argument("--data", type=Path, required=True)
+    e.add_argument("field", type=Path, help="field folder from `fit` or `relight`")
+    e.add_argument(
+        "--data", type=Path, required=True, help="the multi-view folder with the ground truth"
+    )
     e.add_argument("--target-lighting", type=int, help="lighting of the ground truth")
     e.add_argument("--plain", action="store_true", help="NeRF-Synthetic folder: load file_path")
-    e.add_argument("--split", choices=("train", "test"), default="test")
+    e.add_argument(
+        "--split", choices=("train", "test"), default="test", help="views scored (default: test)"
+    )
     e.add_argument("--json", type=Path, help="write the report as JSON")
     e.add_argument("--pred-dir", type=Path, help="also write the renders as PNGs here")
     e.add_argument("--lpips-backbone", type=Path, help="torchvision AlexNet weights (std LPIPS)")
 
     for sp in (f, r, d, e):
-        sp.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+        sp.add_argument(
+            "--device",
+            default="cuda" if torch.cuda.is_available() else "cpu",
+            help="torch device (default: cuda when available, else cpu)",
+        )
         sp.add_argument("--no-progress", action="store_true", help="hide progress bars")
     return p
 
