@@ -1,5 +1,6 @@
 """Nonsense numbers and paths are refused with the argument named (issue 17)."""
 
+import numpy as np
 import pytest
 
 from gaffer_data.cli import main
@@ -61,3 +62,57 @@ def test_info_names_object_folders_without_a_manifest_and_verify_fails(tmp_path,
     assert "1 object folder(s) without manifest.json (incomplete): mug" in capsys.readouterr().out
     assert main(["info", str(tmp_path), "--verify"]) == 1
     assert "--verify" in capsys.readouterr().err
+
+
+def _pool_and_objects(tmp_path, maps):
+    """An objects folder with one (never rendered) mesh and an env-map folder holding `maps`."""
+    from gaffer_envmap.io_exr import write_exr
+
+    objects, envmaps = tmp_path / "objects", tmp_path / "envmaps"
+    objects.mkdir()
+    (objects / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    envmaps.mkdir()
+    for name, (h, w) in maps.items():
+        write_exr(envmaps / f"{name}.exr", np.ones((h, w, 3), np.float32))
+    return objects, envmaps
+
+
+@pytest.mark.parametrize("command", ["render", "render-multiview"])
+def test_render_refuses_a_map_that_is_not_2_to_1_before_creating_the_output(
+    tmp_path, capsys, command
+):
+    objects, envmaps = _pool_and_objects(tmp_path, {"ok": (16, 32), "wide": (16, 48)})
+    out = tmp_path / "out"
+    argv = [command, "--objects", str(objects), "--envmaps", str(envmaps), "--out", str(out)]
+    assert main([*argv, "--yaw-steps", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "`wide.exr` is 48 x 16 (3:1), not a 2:1 lat-long map" in err and "32 x 16" in err
+    assert err.count("\n") == 1 and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["render", "render-multiview"])
+def test_render_refuses_yaw_steps_that_do_not_divide_the_width(tmp_path, capsys, command):
+    objects, envmaps = _pool_and_objects(tmp_path, {"a": (16, 32), "b": (24, 48)})
+    out = tmp_path / "out"
+    argv = [command, "--objects", str(objects), "--envmaps", str(envmaps), "--out", str(out)]
+    assert main([*argv, "--yaw-steps", "7"]) == 2
+    err = capsys.readouterr().err
+    assert "`--yaw-steps` (`augment.yaw_steps`) is 7" in err and "width 32 of `a.exr`" in err
+    assert "(and 1 more)" in err and "[1, 2, 4, 8, 16]" in err  # gcd(32, 48) = 16
+    assert err.count("\n") == 1 and not out.exists()
+
+
+def test_pool_check_passes_good_maps_and_reads_radiance_headers(tmp_path):
+    from gaffer_data.errors import InputError
+    from gaffer_data.render.plan import PoolEntry, check_pool_maps, envmap_size
+    from gaffer_envmap.bundled import bundled_hdris
+
+    pool = [PoolEntry(name=k, path=p, sha256="") for k, p in bundled_hdris().items()]
+    check_pool_maps(pool, 8)  # the shipped 1024 x 512 maps: 2:1 and 8 divides 1024
+    hdr = tmp_path / "x.hdr"
+    hdr.write_bytes(b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 64 +X 128\n" + bytes(16))
+    assert envmap_size(hdr) == (128, 64)
+    garbage = tmp_path / "g.exr"
+    garbage.write_bytes(b"not an image at all")
+    with pytest.raises(InputError, match="no readable EXR or Radiance header"):
+        envmap_size(garbage)

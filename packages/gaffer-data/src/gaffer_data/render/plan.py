@@ -122,6 +122,101 @@ def scan_envmaps(folder: str | Path) -> tuple[PoolEntry, ...]:
     return tuple(PoolEntry(name=p.stem, path=p.resolve(), sha256=sha256_file(p)) for p in files)
 
 
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_HEADER_BYTES = 1 << 16
+"""The first 64 KiB hold the (first part's) header of any EXR or Radiance file the pool may hold."""
+
+
+def envmap_size(path: str | Path) -> tuple[int, int]:
+    """`(width, height)` of an `.exr` / `.hdr` file from its header alone (no pixels decoded).
+
+    EXR: the first part's `dataWindow` attribute; Radiance: the resolution line (`-Y H +X W`).
+
+    Raises:
+        InputError: the file cannot be read or its header is not an EXR / Radiance header.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(_HEADER_BYTES)
+    except OSError as exc:
+        raise InputError(f"environment map `{path}` cannot be read ({exc}).") from exc
+    size = _exr_size(head) if head.startswith(_EXR_MAGIC) else _radiance_size(head)
+    if size is None or min(size) < 1:
+        raise InputError(
+            f"environment map `{path}` has no readable EXR or Radiance header; re-export it as a "
+            "lat-long .exr or .hdr, or remove it from `--envmaps`."
+        )
+    return size
+
+
+def _exr_size(head: bytes) -> tuple[int, int] | None:
+    pos = 8  # magic + version/flags; then (name\0 type\0 int32 size value)* up to an empty name
+    while pos < len(head) and head[pos] != 0:
+        name_end = head.find(b"\0", pos)
+        type_end = head.find(b"\0", name_end + 1)
+        if name_end < 0 or type_end < 0 or type_end + 5 > len(head):
+            return None
+        n = int.from_bytes(head[type_end + 1 : type_end + 5], "little", signed=True)
+        value = head[type_end + 5 : type_end + 5 + n]
+        if head[pos:name_end] == b"dataWindow" and head[name_end + 1 : type_end] == b"box2i":
+            if len(value) != 16:
+                return None
+            x0, y0, x1, y1 = np.frombuffer(value, dtype="<i4").tolist()
+            return x1 - x0 + 1, y1 - y0 + 1
+        if n < 0:
+            return None
+        pos = type_end + 5 + n
+    return None
+
+
+def _radiance_size(head: bytes) -> tuple[int, int] | None:
+    if not head.startswith((b"#?RADIANCE", b"#?RGBE")):
+        return None
+    end = head.find(b"\n\n")
+    if end < 0:
+        return None
+    line = head[end + 2 :].split(b"\n", 1)[0].split()
+    if len(line) != 4 or {line[0][1:], line[2][1:]} != {b"X", b"Y"}:
+        return None
+    try:
+        dims = {line[0][1:]: int(line[1]), line[2][1:]: int(line[3])}
+    except ValueError:
+        return None
+    return dims[b"X"], dims[b"Y"]
+
+
+def check_pool_maps(pool: Sequence[PoolEntry], yaw_steps: int) -> None:
+    """Refuse, before anything is rendered, maps that are not 2:1 or that `yaw_steps` cannot divide.
+
+    Every lighting is a lat-long map rolled by whole `width / yaw_steps` columns (gaffer-envmap's
+    `AugmentSpec`), so both would otherwise fail per object, late, in the Blender workers.
+
+    Raises:
+        InputError: a map is not 2:1 (names the file, its size and the fix), or its header is bad.
+        ConfigError: `yaw_steps` does not divide a map's width (names the divisors that would).
+    """
+    sizes = {entry.path: envmap_size(entry.path) for entry in pool}
+    for path, (w, h) in sizes.items():
+        if w != 2 * h:
+            ratio = f"{w / h:.3g}:1"
+            raise InputError(
+                f"`--envmaps` map `{path.name}` is {w} x {h} ({ratio}), not a 2:1 lat-long map; "
+                f"resample it to {2 * h} x {h} (or {w} x {w // 2}) or remove it from the folder."
+            )
+    bad = [(p, w) for p, (w, _) in sizes.items() if w % yaw_steps]
+    if bad:
+        common = math.gcd(*(w for w, _ in sizes.values()))
+        divisors = [d for d in range(1, 65) if common % d == 0]
+        path, w = bad[0]
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        raise ConfigError(
+            f"`--yaw-steps` (`augment.yaw_steps`) is {yaw_steps}, which does not divide the width {w} of "
+            f"`{path.name}`{more}: the yaw roll must move whole pixel columns; pass one of "
+            f"{divisors} (1: no yaw)."
+        )
+
+
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(rng.uniform(bounds[0], bounds[1]))
 

@@ -53,6 +53,7 @@ from gaffer_data.dataset.schema import (
 from gaffer_data.errors import ConfigError, InputError, ManifestError
 from gaffer_data.render.plan import (
     PoolEntry,
+    check_pool_maps,
     nerf_transforms,
     plan_for,
     plan_poses,
@@ -373,8 +374,9 @@ def render_dataset(
         A summary of the run.
 
     Raises:
-        ConfigError: `out` holds a render made with a different config.
-        InputError: duplicate object ids.
+        ConfigError: `out` holds a render made with a different config, or
+            `config.augment.yaw_steps` does not divide a map's width (`check_pool_maps`).
+        InputError: duplicate object ids, or a map that is not 2:1.
     """
     options = options or RunOptions()
     out = Path(out)
@@ -383,6 +385,8 @@ def render_dataset(
         raise InputError(
             "`objects` holds duplicate object ids; rename the files or use sub-folders."
         )
+    if config.lightings > 0:  # before the folder exists: a 3:1 map or --yaw-steps 7 fails here
+        check_pool_maps(pool, config.augment.yaw_steps)
     out.mkdir(parents=True, exist_ok=True)
     earlier = _check_config(out, config)
     _dataset_json(out, config, earlier)
