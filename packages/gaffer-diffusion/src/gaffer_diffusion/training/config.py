@@ -110,6 +110,13 @@ class DataConfig:
             object_square`, the framing `prepare_object_image` gives photos), so a small model's
             pixels go to the object. The view's camera frame is kept (the crop is small next to the
             lighting's angular detail).
+        target_exposure_stops: each target's environment map and render are re-exposed together by
+            a gain of 2^s, s uniform in [-this, this] stops (`gaffer_diffusion.training.exposure`:
+            exact for Standard-view-transform renders, up to 8-bit rounding), so the output's level
+            follows the target map's. 0 (the default, the paper): off.
+        target_tint_stops: the same, per channel: channel c of each target's map and render is scaled
+            by 2^t_c more, t_c uniform in [-this, this] stops, so the output's colour follows the
+            target map's colour cast. 0 (the default, the paper): off.
         envmap_height: environment maps are resized (solid-angle exact) to `[h, 2h]` so a batch stacks;
             the rotation to the camera frame happens later, batched on the training device.
         lighting_compat: gaffer-envmap encoding of the lighting maps.
@@ -130,6 +137,8 @@ class DataConfig:
     area_light_prob: float = 0.1
     mirror_prob: float = 0.0
     object_fraction: float | None = None
+    target_exposure_stops: float = 0.0
+    target_tint_stops: float = 0.0
     envmap_height: int = 128
     lighting_compat: LightingCompat = "default"
     max_radiance: float = 1e30
@@ -149,6 +158,12 @@ class DataConfig:
             )
         if not 0.0 <= self.mirror_prob <= 1.0:
             raise ConfigError(f"`data.mirror_prob` is {self.mirror_prob}; need [0, 1].")
+        for key in ("target_exposure_stops", "target_tint_stops"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and 0.0 <= value <= 4.0):
+                raise ConfigError(
+                    f"`data.{key}` is {value}; expected stops in [0, 4] (0 turns it off)."
+                )
         if self.envmap_height < 2:
             raise ConfigError(f"`data.envmap_height` is {self.envmap_height}; need >= 2.")
         if not (math.isfinite(self.max_radiance) and self.max_radiance > 0):

@@ -55,6 +55,7 @@ from gaffer_data.dataset import DatasetKind as DatasetKind  # re-exported: it mo
 from gaffer_diffusion.preprocess import load_rgba_on_white, object_square, read_alpha
 from gaffer_diffusion.training.config import DataConfig, LightingCompat
 from gaffer_diffusion.training.errors import DataError
+from gaffer_diffusion.training.exposure import exposure_gains, reexpose_on_white
 
 logger = logging.getLogger(__name__)
 
@@ -556,6 +557,14 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
                 for li in targets
             ]
         )
+        a, b = self.config.target_exposure_stops, self.config.target_tint_stops
+        if a > 0 or b > 0:
+            # drawn after every other draw, so the rest of the item is as without the augmentation
+            for j in range(t):
+                stops = float(rng.uniform(-a, a)) + rng.uniform(-b, b, size=3)
+                gains = exposure_gains(torch.from_numpy(stops), target_images[j], input_alpha)
+                target_images[j] = reexpose_on_white(target_images[j], input_alpha, gains)
+                envmaps[j] = envmaps[j] * gains.to(envmaps.dtype)
         return TrainItem(
             input_image=input_image,
             target_images=target_images,
