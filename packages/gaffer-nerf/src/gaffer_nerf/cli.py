@@ -19,6 +19,11 @@ suggested setting (gaffer-tiny: 1 step, guidance 1, mirror average, "default" en
 release: the paper's 50 steps, guidance 3) unless `--steps`, `--guidance`, `--average-samples`,
 `--mirror-average` or `--compat` say otherwise.
 `--diffusion-preset tiny` uses a RANDOM tiny model: for smoke tests only, its relighting is noise.
+
+Every command checks its arguments first (files exist and parse, numbers in range, outputs writable;
+`gaffer_nerf.preflight`), before torch is imported or a model loaded, so a refusal takes well under a
+second and leaves nothing behind. Exit codes: 0 done, 2 refused or failed (one line on stderr),
+130 Ctrl-C.
 """
 
 import argparse
@@ -28,11 +33,9 @@ import logging
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
-
-from gaffer_nerf.checkpoint import load_field, save_field
+from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
     EarlyStoppingConfig,
@@ -40,15 +43,16 @@ from gaffer_nerf.configs import (
     fit_preset,
     relight_preset,
 )
-from gaffer_nerf.data import load_lighting_envmap, read_gaffer_data_object
-from gaffer_nerf.data.transforms import MultiViewScene, ViewSet
 from gaffer_nerf.errors import ConfigError, GafferNerfError
+
+if TYPE_CHECKING:  # torch and the field code are imported only once the arguments are checked
+    from gaffer_nerf.data.transforms import MultiViewScene, ViewSet
 
 logger = logging.getLogger(__name__)
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gaffer-nerf", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="gaffer-nerf", description=(__doc__ or "").split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     f = sub.add_parser("fit", help="fit a TensoRF field to the input-lighting views")
@@ -200,22 +204,22 @@ def _parser() -> argparse.ArgumentParser:
     for sp in (f, r, d, e):
         sp.add_argument(
             "--device",
-            default="cuda" if torch.cuda.is_available() else "cpu",
-            help="torch device (default: cuda when available, else cpu)",
+            default="auto",
+            help="torch device: auto (cuda when available, else cpu; the default), cpu, cuda[:N], mps",
         )
         sp.add_argument("--no-progress", action="store_true", help="hide progress bars")
     return p
 
 
-def _scene(data: Path, lighting: int | None) -> MultiViewScene:
-    if lighting is None:
-        from gaffer_nerf.data import read_transforms_folder
+def _scene(data: Path, lighting: int | None) -> "MultiViewScene":
+    from gaffer_nerf.data import read_gaffer_data_object, read_transforms_folder
 
+    if lighting is None:
         return read_transforms_folder(data)
     return read_gaffer_data_object(data, lighting_index=lighting)
 
 
-def _split(scene: MultiViewScene, split: str) -> ViewSet:
+def _split(scene: "MultiViewScene", split: str) -> "ViewSet":
     views = scene.train if split == "train" else scene.test
     if views is None:
         raise ConfigError(f"{scene.root} has no `transforms_{split}.json`; pick --split train.")
@@ -223,6 +227,8 @@ def _split(scene: MultiViewScene, split: str) -> ViewSet:
 
 
 def _jsonable(obj: Any) -> Any:
+    import torch
+
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {k: _jsonable(v) for k, v in dataclasses.asdict(obj).items()}
     if isinstance(obj, dict):
@@ -237,41 +243,27 @@ def _jsonable(obj: Any) -> Any:
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from gaffer_nerf.fit import fit_tensorf
-
-    cfg = fit_preset(args.preset)
-    changes: dict[str, Any] = {"seed": args.seed}
-    if args.iterations is not None:
-        changes["iterations"] = args.iterations
-    if args.batch_rays is not None:
-        changes["batch_rays"] = args.batch_rays
-    changes["sizing"] = dataclasses.replace(cfg.sizing, mode=args.sizing)
-    if args.early_stopping:
-        changes["early_stopping"] = EarlyStoppingConfig()
-    selecting = (
-        args.rank_selection or args.rank_ladder is not None or args.rank_tolerance is not None
-    )
-    if selecting:
-        sel: dict[str, Any] = {}
-        if args.rank_ladder is not None:
-            sel["ladder"] = tuple(args.rank_ladder)
-        if args.rank_tolerance is not None:
-            sel["tolerance_db"] = args.rank_tolerance
-        changes["rank_selection"] = RankSelectionConfig(**sel)
-    cfg = dataclasses.replace(cfg, **changes)
-    scene = _scene(args.data, None if args.plain else args.lighting_index)
-    needs_heldout = args.early_stopping or selecting
-    if needs_heldout and scene.test is None:
+    cfg = _fit_config(args)  # every check before torch is imported
+    info = preflight.check_data_folder(args.data)
+    if not args.plain:
+        preflight.check_lighting(info, "--lighting-index", args.lighting_index)
+    if (cfg.early_stopping is not None or cfg.rank_selection is not None) and not info.has_test:
         raise ConfigError(
-            f"`--early-stopping` / `--rank-selection` score held-out views, but {scene.root} has no "
+            f"`--early-stopping` / `--rank-selection` score held-out views, but {args.data} has no "
             "`transforms_test.json`; add a test split or drop those flags."
         )
+    preflight.check_output_dir(args.out, "--out")
+    preflight.check_device_name(args.device)
+    device = preflight.resolve_device(args.device)
+
+    from gaffer_nerf.checkpoint import save_field
+    from gaffer_nerf.fit import fit_tensorf
+
+    logger.info("loading %s (%d train views)", args.data, info.train_frames)
+    scene = _scene(args.data, None if args.plain else args.lighting_index)
+    heldout = scene.test if cfg.early_stopping or cfg.rank_selection is not None else None
     res = fit_tensorf(
-        scene.train,
-        cfg,
-        heldout=scene.test if needs_heldout else None,
-        device=args.device,
-        progress=not args.no_progress,
+        scene.train, cfg, heldout=heldout, device=device, progress=not args.no_progress
     )
     save_field(res.field, args.out)
     (args.out / "fit_report.json").write_text(json.dumps(_jsonable(res.report), indent=2))
@@ -290,6 +282,36 @@ def _fit(args: argparse.Namespace) -> int:
                 f"({rung.memory_mib:.2f} MiB), {rung.seconds:.1f} s"
             )
     return 0
+
+
+def _fit_config(args: argparse.Namespace) -> Any:
+    """The preset with the command line's overrides (torch-free; a bad number fails here)."""
+    preflight.check_count(args.iterations, "--iterations")
+    if args.batch_rays is not None:
+        preflight.check_batch_rays(args.batch_rays)
+    cfg = fit_preset(args.preset)
+    changes: dict[str, Any] = {"seed": args.seed}
+    if args.iterations is not None:
+        changes["iterations"] = args.iterations
+    if args.batch_rays is not None:
+        changes["batch_rays"] = args.batch_rays
+    changes["sizing"] = dataclasses.replace(cfg.sizing, mode=args.sizing)
+    if args.early_stopping:
+        changes["early_stopping"] = EarlyStoppingConfig()
+    selecting = (
+        args.rank_selection or args.rank_ladder is not None or args.rank_tolerance is not None
+    )
+    if selecting:
+        sel: dict[str, Any] = {}
+        if args.rank_ladder is not None:
+            sel["ladder"] = tuple(args.rank_ladder)
+        if args.rank_tolerance is not None:
+            sel["tolerance_db"] = args.rank_tolerance
+        try:
+            changes["rank_selection"] = RankSelectionConfig(**sel)
+        except ConfigError as exc:
+            raise ConfigError(f"`--rank-ladder` / `--rank-tolerance`: {exc}") from exc
+    return dataclasses.replace(cfg, **changes)
 
 
 def _load_diffusion(args: argparse.Namespace) -> Any:
@@ -332,10 +354,11 @@ def _relight_config(args: argparse.Namespace) -> Any:
     return cfg
 
 
-def _target_envmap(args: argparse.Namespace, scene: MultiViewScene) -> Any:
+def _target_envmap(args: argparse.Namespace, scene: "MultiViewScene") -> Any:
     """`--envmap FILE|NAME` or lighting `--target-lighting` of the scene, sanitized by `--sanitize`."""
     from gaffer_envmap import read_envmap
     from gaffer_envmap.errors import NonFiniteError
+    from gaffer_nerf.data import load_lighting_envmap
 
     try:
         if args.envmap is not None:
@@ -378,23 +401,59 @@ def _envmap_path(text: str) -> Path:
     )
 
 
-def _relight(args: argparse.Namespace) -> int:
-    from gaffer_diffusion import RelightPipeline, RuntimeConfig
-    from gaffer_nerf.evaluate import write_images
-    from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss
-    from gaffer_nerf.relight import relight_field
-
+def _check_relight_args(args: argparse.Namespace) -> Any:
+    """Every `relight` argument, torch-free: returns the relight config."""
     cfg = _relight_config(args)
     if args.diffusion_preset == "tiny" and args.checkpoint is not None:
         raise ConfigError(
             "`--diffusion-preset tiny` is a random smoke model; drop it or `--checkpoint`."
         )
+    if args.base_model is not None and args.checkpoint is None:
+        raise ConfigError("`--base-model` goes with the authors' `--checkpoint`; pass both.")
+    preflight.check_field_folder(args.field)
+    info = preflight.check_data_folder(args.data)
+    preflight.check_lighting(info, "--input-lighting", args.input_lighting)
+    if args.envmap is not None and args.target_lighting is not None:
+        raise ConfigError("Pass either `--envmap FILE|NAME` or `--target-lighting K`, not both.")
+    if args.envmap is not None:
+        _envmap_path(args.envmap)
+    elif args.target_lighting is not None:
+        preflight.check_lighting(info, "--target-lighting", args.target_lighting)
+    else:
+        raise ConfigError("Pass `--target-lighting K` (with `--envmaps DIR`) or `--envmap FILE`.")
+    if args.envmaps is not None and not args.envmaps.is_dir():
+        raise ConfigError(f"`--envmaps` {args.envmaps} is not a folder; pass the pool's folder.")
+    for flag, path, what in (
+        ("--checkpoint", args.checkpoint, "a model folder, or leave it out for gaffer-tiny"),
+        ("--base-model", args.base_model, "the Zero-1-to-3 XL folder"),
+        ("--lpips-backbone", args.lpips_backbone, "torchvision AlexNet weights, or leave it out"),
+    ):
+        if path is not None:
+            preflight.check_existing(path, flag, what)
+    preflight.check_output_dir(args.out, "--out")
+    preflight.check_device_name(args.device)
+    return cfg
+
+
+def _relight(args: argparse.Namespace) -> int:
+    cfg = _check_relight_args(args)
+    device = preflight.resolve_device(args.device)
+
+    from gaffer_diffusion import RelightPipeline, RuntimeConfig
+    from gaffer_nerf.checkpoint import load_field, save_field
+    from gaffer_nerf.data import read_gaffer_data_object
+    from gaffer_nerf.evaluate import write_images
+    from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss
+    from gaffer_nerf.relight import relight_field
+
+    logger.info("loading %s and the field %s", args.data, args.field)
     scene = read_gaffer_data_object(args.data, lighting_index=args.input_lighting)
     env = _target_envmap(args, scene)
-    field = load_field(args.field, device=args.device)
+    field = load_field(args.field, device=device)
+    logger.info("loading the diffusion model (%s)", args.checkpoint or "gaffer-tiny")
     loaded = _load_diffusion(args)
-    dtype = "float16" if args.device.startswith("cuda") else "float32"
-    pipe = RelightPipeline(loaded.model, RuntimeConfig(device=args.device, dtype=dtype))
+    dtype = "float16" if device.startswith("cuda") else "float32"
+    pipe = RelightPipeline(loaded.model, RuntimeConfig(device=device, dtype=dtype))
     guide = DiffusionGuide(pipe, cfg.diffusion, loaded.suggested)
     s = guide.sampling
     whose = "flags over the model's suggestion" if _sampling_overridden(args) else "the model's own"
@@ -404,7 +463,7 @@ def _relight(args: argparse.Namespace) -> int:
         f"{s.guidance_scale:g}, {s.average_samples} sample(s), mirror average "
         f"{'on' if s.mirror_average else 'off'}, {s.compat!r} encoding ({whose})"
     )
-    perceptual = load_perceptual_loss(args.lpips_backbone, device=args.device)
+    perceptual = load_perceptual_loss(args.lpips_backbone, device=device)
     res = relight_field(
         field, scene.train, env, guide, cfg, perceptual, progress=not args.no_progress
     )
@@ -441,15 +500,23 @@ def _sampling_overridden(args: argparse.Namespace) -> bool:
 
 
 def _render(args: argparse.Namespace) -> int:
+    preflight.check_field_folder(args.field)
+    info = preflight.check_data_folder(args.data)
+    preflight.check_split(info, args.split)
+    preflight.check_count(args.orbit, "--orbit", high=preflight.MAX_ORBIT_FRAMES)
+    if args.orbit is not None:
+        preflight.check_fps(args.fps)
+    preflight.check_output_dir(args.out, "--out")
+    preflight.check_device_name(args.device)
+    device = preflight.resolve_device(args.device)
+
+    from gaffer_nerf.checkpoint import load_field
     from gaffer_nerf.evaluate import render_views, write_images
 
-    scene = (
-        read_gaffer_data_object(args.data, lighting_index=0)
-        if _has_lit(args.data)
-        else _scene(args.data, None)
-    )
+    logger.info("loading %s and the field %s", args.data, args.field)
+    scene = _scene(args.data, 0 if info.has_lit else None)
     views = _split(scene, args.split)
-    field = load_field(args.field, device=args.device)
+    field = load_field(args.field, device=device)
     if args.orbit is not None:
         from gaffer_nerf.video import orbit_path, render_orbit
 
@@ -466,27 +533,35 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
-def _has_lit(data: Path) -> bool:
-    path = data / "transforms_train.json"
-    if not path.is_file():
-        return False
-    frames = json.loads(path.read_text()).get("frames") or [{}]
-    return bool(frames[0].get("lit"))
-
-
 def _evaluate(args: argparse.Namespace) -> int:
-    from gaffer_diffusion.errors import MetricUnavailableError
-    from gaffer_diffusion.metrics import load_perceptual
-    from gaffer_nerf.evaluate import evaluate_field, write_images
-
     if args.target_lighting is None and not args.plain:
         raise ConfigError(
             "Pass `--target-lighting K`: scores are against the ground truth under the TARGET "
             "lighting (use `--plain` for a NeRF-Synthetic folder with one lighting)."
         )
+    preflight.check_field_folder(args.field)
+    info = preflight.check_data_folder(args.data)
+    preflight.check_split(info, args.split)
+    if not args.plain:
+        preflight.check_lighting(info, "--target-lighting", args.target_lighting)
+    if args.json is not None:
+        preflight.check_output_file(args.json, "--json")
+    if args.pred_dir is not None:
+        preflight.check_output_dir(args.pred_dir, "--pred-dir")
+    if args.lpips_backbone is not None:
+        preflight.check_existing(args.lpips_backbone, "--lpips-backbone", "AlexNet weights")
+    preflight.check_device_name(args.device)
+    device = preflight.resolve_device(args.device)
+
+    from gaffer_diffusion.errors import MetricUnavailableError
+    from gaffer_diffusion.metrics import load_perceptual
+    from gaffer_nerf.checkpoint import load_field
+    from gaffer_nerf.evaluate import evaluate_field, write_images
+
+    logger.info("loading %s and the field %s", args.data, args.field)
     scene = _scene(args.data, None if args.plain else args.target_lighting)
     views = _split(scene, args.split)
-    field = load_field(args.field, device=args.device)
+    field = load_field(args.field, device=device)
     perceptual: Any = "auto"
     if args.lpips_backbone is not None:
         try:
