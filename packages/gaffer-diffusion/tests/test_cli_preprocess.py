@@ -90,11 +90,14 @@ def test_cli_relight_envmap_turntable(tmp_path, model_dir) -> None:
 
 def test_cli_errors_are_clear(tmp_path, model_dir, capsys) -> None:
     Image.fromarray(_rgba()[..., :3]).save(tmp_path / "rgb.png")
-    args = ["relight", str(tmp_path / "rgb.png"), "--ldr", "a.png", "--hdr", "b.png"]
+    for name in ("a.png", "b.png"):  # lighting maps that exist: the flags are checked first
+        Image.fromarray(np.full((16, 16, 3), 128, np.uint8)).save(tmp_path / name)
+    maps = ["--ldr", str(tmp_path / "a.png"), "--hdr", str(tmp_path / "b.png")]
+    args = ["relight", str(tmp_path / "rgb.png"), *maps]
     args += ["--checkpoint", str(model_dir), "--out", str(tmp_path / "o.png")]
     assert main(args) == 2
     assert "no alpha channel" in capsys.readouterr().err
-    args = ["relight", str(tmp_path / "rgb.png"), "--checkpoint", str(tmp_path)]
+    args = ["relight", str(tmp_path / "rgb.png"), *maps, "--checkpoint", str(tmp_path)]
     args += ["--out", str(tmp_path / "o.png")]
     assert main(args) == 2
     assert "--base-model" in capsys.readouterr().err
@@ -114,3 +117,34 @@ def test_cli_evaluate(tmp_path) -> None:
     report = json.loads((tmp_path / "r.json").read_text())
     assert [i["name"] for i in report["items"]] == ["0.png", "1.png"]
     assert "aligned (whole image)" in (tmp_path / "r.md").read_text()
+
+
+def test_turntable_frames_are_complete_or_absent(tmp_path, model_dir, monkeypatch) -> None:
+    """Issue 17: a turntable that fails while writing leaves an earlier run's frames as they were;
+    one that finishes leaves none of the earlier run's extra frames (fewer frames, other format)."""
+    pytest.importorskip("gaffer_envmap.encode")
+    from gaffer_diffusion import _video
+
+    Image.fromarray(_rgba()).save(tmp_path / "obj.png")
+    args = ["relight", str(tmp_path / "obj.png"), "--envmap", "studio", "--azimuth", "30"]
+    args += ["--elevation", "10", "--checkpoint", str(model_dir), "--steps", "1"]
+    args += ["--out", str(tmp_path / "t.png"), "--video", "gif"]
+    for k in range(5):  # an earlier run of 5 frames
+        (tmp_path / f"t_{k:03d}.png").write_bytes(b"old")
+    (tmp_path / "t.gif").write_bytes(b"old")
+    (tmp_path / "t_notes.txt").write_text("not a frame")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+
+    def fail(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_video, "write_animation", fail)
+    assert main([*args, "--turntable", "3"]) == 2
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # and no staging folder
+    monkeypatch.undo()
+    assert main([*args, "--turntable", "3"]) == 0
+    frames = sorted(p.name for p in tmp_path.glob("t_*.png"))
+    assert frames == ["t_000.png", "t_001.png", "t_002.png"]
+    assert (tmp_path / "t.gif").read_bytes()[:3] == b"GIF"
+    assert (tmp_path / "t_notes.txt").is_file()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

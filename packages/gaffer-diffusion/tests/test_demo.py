@@ -294,3 +294,51 @@ def test_relight_without_checkpoint_names_the_missing_weights(
     assert "gaffer-tiny" in err and looked_for in err and "--checkpoint" in err
     with pytest.raises(CheckpointNotFoundError, match="gaffer-tiny"):
         load_model(None)
+
+
+def _strict_json(text: str) -> object:
+    """`json.loads` that refuses `Infinity`/`NaN` (what strict parsers do) instead of reading them."""
+
+    def refuse(constant: str) -> None:
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_metrics_json_is_strict_json(demo_out) -> None:
+    m = _strict_json((demo_out / "metrics.json").read_text())
+    assert isinstance(m, dict) and "summary" in m
+
+
+@pytest.mark.parametrize("failure", [RuntimeError("simulated failure"), KeyboardInterrupt()])
+def test_a_failed_rerun_leaves_the_earlier_folder_as_it_was(
+    tmp_path, model_dir, example, monkeypatch, failure
+) -> None:
+    """Issue 17: the demo folder is complete or absent; a rerun that fails (an error, Ctrl-C) while
+    writing leaves the earlier run's files untouched, and a finished rerun leaves none of them."""
+    from gaffer_diffusion import demo as demo_module
+
+    out = tmp_path / "out"
+    cfg = {"checkpoint": model_dir, "example": example, "num_inference_steps": 2}
+    run_demo(DemoConfig(out=out, frames=2, extra_hdris=False, **cfg))
+    (out / "envmap").mkdir()  # another tool's output in the same folder (nox demo: gaffer-envmap)
+    (out / "envmap" / "keep.txt").write_text("gaffer-envmap demo")
+
+    def files() -> dict[str, bytes]:
+        return {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    before = files()
+
+    def fail(*args, **kwargs):
+        raise failure
+
+    monkeypatch.setattr(demo_module, "render_html", fail)  # the last file written
+    with pytest.raises(type(failure)):
+        run_demo(DemoConfig(out=out, frames=0, extra_hdris=False, **cfg))
+    assert files() == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # no staging folder left behind
+    monkeypatch.undo()
+    run_demo(DemoConfig(out=out, frames=0, extra_hdris=False, **cfg))
+    assert not (out / "turntable").exists() and not (out / "turntable.gif").exists()  # not stale
+    assert (out / "envmap" / "keep.txt").read_text() == "gaffer-envmap demo"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

@@ -453,3 +453,26 @@ def test_evaluate_dataset_object_fraction_crops_input_target_and_mask(dataset) -
     assert cropped.report.mean_raw.psnr != pytest.approx(whole.report.mean_raw.psnr, abs=1e-3)
     assert cropped.summary().startswith("object mask: PSNR")
     assert json.loads(cropped.to_json())["closer_than_input"] is not None
+
+
+def test_envmaps_with_the_right_names_but_other_pixels_are_refused(tmp_path, capsys) -> None:
+    """Issue 17: each manifest records the maps' sha256; `--envmaps` maps that differ are refused."""
+    import shutil
+
+    from gaffer_envmap import EnvironmentMap, write_envmap
+
+    maps = _write_envmaps(tmp_path / "maps")
+    root = write_tiny_dataset(tmp_path / "render", maps)
+    moved = tmp_path / "moved"
+    shutil.move(tmp_path / "maps", moved)  # the recorded paths no longer exist
+    other = tmp_path / "other"
+    shutil.copytree(moved, other)
+    env = np.full((8, 16, 3), 0.5, np.float32)
+    write_envmap(other / "warm.exr", EnvironmentMap(radiance_linear=env))  # same name, other map
+    assert len(dataset_pairs(root, envmap_dirs=[moved])) > 0
+    with pytest.raises(DatasetError, match=r"warm.*sha256.*--envmaps"):
+        dataset_pairs(root, envmap_dirs=[other])
+    args = ["evaluate", "--dataset", str(root), "--envmaps", str(other), "--no-perceptual"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "warm.exr" in err and "--envmaps" in err and len(err.strip().splitlines()) == 1

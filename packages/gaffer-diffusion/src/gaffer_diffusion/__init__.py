@@ -2,40 +2,102 @@
 
 Public API: configs and presets, model construction, conditioning, the relighting pipeline and samplers,
 loaders for the authors' checkpoint / Zero123-XL / our own format, and evaluation metrics.
+
+The names are loaded lazily (PEP 562), so `import gaffer_diffusion.cli` or `gaffer_diffusion.errors`
+does not import torch or diffusers: the command line checks its arguments before it loads them (issue 17).
 """
 
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from gaffer_diffusion._version import __version__
-from gaffer_diffusion.conditioning import (
-    EncodedConditions,
-    LightingMaps,
-    RelightingConditions,
-    clip_preprocess,
-    encode_conditions,
-    lighting_from_envmap,
-)
-from gaffer_diffusion.configs import (
-    PRESETS,
-    ImageEncoderConfig,
-    ModelConfig,
-    SchedulerConfig,
-    UNetConfig,
-    VAEConfig,
-    get_preset,
-)
-from gaffer_diffusion.errors import (
-    CheckpointMismatchError,
-    CheckpointNotFoundError,
-    ConfigError,
-    GafferDiffusionError,
-    InputValueError,
-    MetricUnavailableError,
-    MissingDependencyError,
-    NonFiniteOutputError,
-    ShapeError,
-)
-from gaffer_diffusion.models import NeuralGafferModel, build_model, expand_conv_in
-from gaffer_diffusion.pipelines import RelightOutput, RelightPipeline, RuntimeConfig, SamplingConfig
-from gaffer_diffusion.schedulers import SCHEDULERS, make_scheduler
+
+_EXPORTS: dict[str, str] = {
+    "CheckpointMismatchError": "errors",
+    "CheckpointNotFoundError": "errors",
+    "ConfigError": "errors",
+    "EncodedConditions": "conditioning",
+    "GafferDiffusionError": "errors",
+    "ImageEncoderConfig": "configs",
+    "InputValueError": "errors",
+    "LightingMaps": "conditioning",
+    "MetricUnavailableError": "errors",
+    "MissingDependencyError": "errors",
+    "ModelConfig": "configs",
+    "NeuralGafferModel": "models",
+    "NonFiniteOutputError": "errors",
+    "PRESETS": "configs",
+    "RelightOutput": "pipelines",
+    "RelightPipeline": "pipelines",
+    "RelightingConditions": "conditioning",
+    "RuntimeConfig": "pipelines",
+    "SCHEDULERS": "schedulers",
+    "SamplingConfig": "pipelines",
+    "SchedulerConfig": "configs",
+    "ShapeError": "errors",
+    "UNetConfig": "configs",
+    "VAEConfig": "configs",
+    "build_model": "models",
+    "clip_preprocess": "conditioning",
+    "encode_conditions": "conditioning",
+    "expand_conv_in": "models",
+    "get_preset": "configs",
+    "lighting_from_envmap": "conditioning",
+    "make_scheduler": "schedulers",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'gaffer_diffusion' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"gaffer_diffusion.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
+if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
+    from gaffer_diffusion.conditioning import (
+        EncodedConditions,
+        LightingMaps,
+        RelightingConditions,
+        clip_preprocess,
+        encode_conditions,
+        lighting_from_envmap,
+    )
+    from gaffer_diffusion.configs import (
+        PRESETS,
+        ImageEncoderConfig,
+        ModelConfig,
+        SchedulerConfig,
+        UNetConfig,
+        VAEConfig,
+        get_preset,
+    )
+    from gaffer_diffusion.errors import (
+        CheckpointMismatchError,
+        CheckpointNotFoundError,
+        ConfigError,
+        GafferDiffusionError,
+        InputValueError,
+        MetricUnavailableError,
+        MissingDependencyError,
+        NonFiniteOutputError,
+        ShapeError,
+    )
+    from gaffer_diffusion.models import NeuralGafferModel, build_model, expand_conv_in
+    from gaffer_diffusion.pipelines import (
+        RelightOutput,
+        RelightPipeline,
+        RuntimeConfig,
+        SamplingConfig,
+    )
+    from gaffer_diffusion.schedulers import SCHEDULERS, make_scheduler
+
 
 __all__ = [
     "PRESETS",

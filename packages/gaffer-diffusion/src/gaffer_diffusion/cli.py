@@ -24,6 +24,8 @@
 Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 128 px model shipped in the package.
 """
 
+from __future__ import annotations
+
 import argparse
 import logging
 import sys
@@ -31,54 +33,39 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, get_args
 
-import numpy as np
-import torch
-from PIL import Image
-
+# Only torch-free modules at import time: every argument is checked before torch, diffusers or a
+# model loads, so a refusal takes well under a second (issue 17); the rest is imported where used.
+from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion import pretrained
-from gaffer_diffusion.app.config import add_app_arguments
-from gaffer_diffusion.conditioning import (
+from gaffer_diffusion._choices import (
+    BACKDROP_FOV_DEG,
+    MANIFEST_NAME,
+    PRESETS,
+    SCHEDULERS,
+    Background,
+    DetailMode,
     LatentMode,
-    LightingMaps,
-    RelightingConditions,
-    lighting_from_envmap,
+    OutputSize,
+    PrepareCompat,
 )
-from gaffer_diffusion.configs import PRESETS, get_preset
+from gaffer_diffusion.app.config import add_app_arguments
 from gaffer_diffusion.errors import (
     ConfigError,
     GafferDiffusionError,
     InputValueError,
     MissingDependencyError,
 )
-from gaffer_diffusion.loading import (
-    MANIFEST_NAME,
-    load_authors_release,
-    load_pretrained,
-    save_pretrained,
-)
-from gaffer_diffusion.models.build import build_model
-from gaffer_diffusion.models.model import NeuralGafferModel
-from gaffer_diffusion.photo import (
-    BACKDROP_FOV_DEG,
-    Background,
-    DetailMode,
-    OutputSize,
-    Photo,
-    PreparedPhoto,
-    model_crop,
-    object_alpha,
-    paste_back,
-    prepare_photo,
-    read_mask,
-    read_photo,
-)
-from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
-from gaffer_diffusion.preprocess import PrepareCompat
-from gaffer_diffusion.schedulers import SCHEDULERS
 from gaffer_envmap.errors import GafferError
 
 if TYPE_CHECKING:
+    import numpy as np
+    import torch
     from tqdm import tqdm
+
+    from gaffer_diffusion.conditioning import LightingMaps
+    from gaffer_diffusion.models.model import NeuralGafferModel
+    from gaffer_diffusion.photo import Photo, PreparedPhoto
+    from gaffer_diffusion.pipelines import RuntimeConfig, SamplingConfig
 
 logger = logging.getLogger(__name__)
 
@@ -284,7 +271,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--batch-size", type=int, default=8, help="images per sampling call")
     d.add_argument(
         "--device",
-        default="cuda" if torch.cuda.is_available() else "cpu",
+        default=None,
         help="torch device (default: cuda when available, else cpu)",
     )
     d.add_argument(
@@ -383,7 +370,7 @@ def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> 
     p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
     p.add_argument(
         "--device",
-        default="cuda" if torch.cuda.is_available() else "cpu",
+        default=None,
         help="torch device (default: cuda when available, else cpu)",
     )
     p.add_argument(
@@ -426,6 +413,8 @@ def _input_lighting(text: str) -> int | str:
 
 
 def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGafferModel:
+    from gaffer_diffusion.loading import load_authors_release, load_pretrained
+
     if checkpoint is None:
         from gaffer_diffusion.demo import load_model
 
@@ -457,20 +446,54 @@ def _base_model_error(checkpoint: Path) -> ConfigError:
 
 
 def _pose(args: argparse.Namespace) -> Any:
+    """The camera of `--w2c` or `--azimuth/--elevation`; numpy and gaffer-envmap only (no torch), so
+    the checks call it before any weights load."""
     from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 
     if args.w2c is not None:
         if args.azimuth is not None or args.elevation is not None:
             raise ConfigError("Pass either `--w2c` or `--azimuth`/`--elevation`, not both.")
-        return W2CBlender.from_array(np.load(args.w2c, allow_pickle=False))
+        return W2CBlender.from_array(_read_w2c(args.w2c))
     if args.azimuth is not None and args.elevation is not None:
+        checks.finite("--azimuth", args.azimuth)
+        checks.finite("--elevation", args.elevation, -90.0, 90.0)
         return orbit_w2c_blender(args.azimuth, args.elevation)
     raise ConfigError("Give the camera: `--w2c W2C.npy`, or both `--azimuth` and `--elevation`.")
+
+
+def _read_w2c(path: Path) -> np.ndarray:
+    """`--w2c`: a 3x4 or 4x4 float .npy (no pickles), refused with one line otherwise."""
+    import numpy as np
+
+    checks.need_file("--w2c", path, "a 3x4 or 4x4 world-to-camera .npy (numpy.save)")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise InputValueError(
+            f"`--w2c` {path} is not a plain numeric .npy ({exc}); save the 3x4 or 4x4 matrix with "
+            "numpy.save (no pickled objects)."
+        ) from exc
+    if (
+        not isinstance(arr, np.ndarray)
+        or arr.dtype.kind not in "fiu"
+        or arr.shape not in ((3, 4), (4, 4))
+    ):
+        shape = getattr(arr, "shape", None)
+        raise InputValueError(
+            f"`--w2c` {path} holds {getattr(arr, 'dtype', type(arr).__name__)} of shape {shape}; "
+            "pass a 3x4 or 4x4 float world-to-camera matrix."
+        )
+    if not np.isfinite(arr).all():
+        raise InputValueError(f"`--w2c` {path} holds NaN or Inf; pass a finite matrix.")
+    return arr.astype(np.float64)
 
 
 def _envmap_lighting(
     args: argparse.Namespace, envmap: Path, size: int, frames: int = 0
 ) -> LightingMaps:
+    import torch
+
+    from gaffer_diffusion.conditioning import lighting_from_envmap
     from gaffer_envmap.io import read_envmap
 
     pose = _pose(args)
@@ -495,6 +518,7 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
             raise ConfigError("Pass both `--ldr` and `--hdr` (pre-encoded maps) and no `--envmap`.")
         if frames > 1:
             raise ConfigError("`--turntable` needs `--envmap` (pre-encoded maps cannot be spun).")
+        from gaffer_diffusion.conditioning import LightingMaps
         from gaffer_diffusion.evaluation import read_lighting_map
 
         return LightingMaps(
@@ -510,25 +534,32 @@ def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
 
 def _save_png(path: Path, image: torch.Tensor | np.ndarray) -> None:
     """Write a PNG atomically: the file is complete or absent (`gaffer_envmap.atomic`)."""
+    import numpy as np
+    from PIL import Image
+
     from gaffer_envmap.atomic import atomic_path
 
-    arr = _to_uint8(image) if isinstance(image, torch.Tensor) else image
+    arr = image if isinstance(image, np.ndarray) else _to_uint8(image)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
         Image.fromarray(arr).save(tmp, format="PNG")
 
 
 def _to_uint8(image: torch.Tensor) -> np.ndarray:
+    import numpy as np
+
     return (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
 
 
-def _progress(total: int, desc: str) -> "tqdm[Any]":
+def _progress(total: int, desc: str) -> tqdm[Any]:
     from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=desc, unit="img", file=sys.stderr)
 
 
 def _sampling(args: argparse.Namespace) -> SamplingConfig:
+    from gaffer_diffusion.pipelines import SamplingConfig
+
     steps, guidance, average = args.steps, args.guidance, args.average_samples
     mirror = args.mirror_average
     if getattr(args, "checkpoint", None) is None:  # gaffer-tiny: the settings it was evaluated with
@@ -557,19 +588,43 @@ def _latent_mode(args: argparse.Namespace) -> Any:
 def _runtime(args: argparse.Namespace) -> RuntimeConfig:
     """Device and precision; `--dtype float16` on CUDA under `--compat neural-gaffer` autocasts the
     UNet with float32 weights, as the authors run it (official implementation §2)."""
+    from gaffer_diffusion.pipelines import RuntimeConfig
+
+    _check_autocast(args)
+    device = _device(args)
     autocast = args.autocast
     if autocast is None:
         autocast = (
             args.dtype == "float16"
-            and str(args.device).startswith("cuda")
+            and device.startswith("cuda")
             and _compat(args) == "neural-gaffer"
         )
-    if autocast and args.dtype == "float32":
+    return RuntimeConfig(device=device, dtype=args.dtype, autocast=bool(autocast))
+
+
+def _check_autocast(args: argparse.Namespace) -> None:
+    if args.autocast and args.dtype == "float32":
         raise ConfigError(
             "`--autocast` runs the UNet in lower precision: add `--dtype float16` (the authors') or "
             "`--dtype bfloat16`."
         )
-    return RuntimeConfig(device=args.device, dtype=args.dtype, autocast=bool(autocast))
+
+
+def _device(args: argparse.Namespace) -> str:
+    """`--device`, else cuda when available; a CUDA device this torch cannot use is refused."""
+    import torch
+
+    if args.device is None:
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    device = str(args.device)
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(
+            f"`--device {device}`: this torch build ({torch.__version__}) sees no CUDA GPU; pass "
+            "`--device cpu`, or install a CUDA build of torch on a machine with a GPU."
+        )
+    if device.startswith("mps") and not torch.backends.mps.is_available():
+        raise ConfigError(f"`--device {device}`: no Apple MPS device here; pass `--device cpu`.")
+    return device
 
 
 def _background_note(args: argparse.Namespace) -> str:
@@ -625,6 +680,10 @@ def _photo_and_mask(
 ) -> tuple[Photo, np.ndarray, str]:
     """The photo and its object mask, read and checked before any weights load, and a note on the mask
     for the report (an automatic mask is written to `mask_out`)."""
+    import numpy as np
+
+    from gaffer_diffusion.photo import object_alpha, read_mask, read_photo
+
     photo = read_photo(image)
     sam = getattr(args, "sam_checkpoint", None)
     if sam is None and mask != "auto":
@@ -682,6 +741,10 @@ def _finish(
     frame: tuple[int, int] = (0, 1),
 ) -> np.ndarray:
     """One model result as written: pasted back at the photo's size, or the model's crop."""
+    import numpy as np
+
+    from gaffer_diffusion.photo import model_crop, paste_back
+
     k, n = frame
     match args.output_size:
         case "model":
@@ -703,6 +766,212 @@ def _finish(
             raise ConfigError(f"`--output-size` is {args.output_size!r}; expected input or model.")
 
 
+# --- cheap checks: every flag of a command, before torch is imported or a model loaded (issue 17) ---
+
+_DEVICE_NAMES = ("cpu", "cuda", "mps", "xpu")
+
+
+def _check_device_cheaply(device: str | None) -> None:
+    """`--device` names a torch device, and a CUDA one has a GPU to run on (no torch import: a
+    Linux machine without /dev/nvidia* has no CUDA device; torch confirms it later)."""
+    if device is None:
+        return
+    kind, _, index = device.partition(":")
+    if kind not in _DEVICE_NAMES or (index and not index.isdigit()):
+        raise ConfigError(f"`--device` is {device!r}; expected cpu, cuda, cuda:N or mps.")
+    if kind == "cuda" and sys.platform.startswith("linux"):
+        if not any(Path("/dev").glob("nvidia[0-9]*")):
+            raise ConfigError(
+                f"`--device {device}`: this machine has no NVIDIA GPU (no /dev/nvidia*); pass "
+                "`--device cpu`."
+            )
+
+
+def _check_sampling_args(args: argparse.Namespace) -> None:
+    checks.int_range("--steps", args.steps, 1, checks.MAX_STEPS, "gaffer-tiny: 1, the paper: 50")
+    checks.finite("--guidance", args.guidance, 0.0, 100.0)
+    checks.int_range("--average-samples", args.average_samples, 1, checks.MAX_AVERAGE_SAMPLES)
+    checks.int_range("--batch-size", args.batch_size, 1, checks.MAX_BATCH)
+    checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
+    _check_device_cheaply(args.device)
+    if hasattr(args, "autocast"):
+        _check_autocast(args)
+
+
+def _check_model_args(args: argparse.Namespace) -> None:
+    """`--checkpoint` / `--base-model` exist and go together."""
+    if args.checkpoint is not None:
+        checks.need_dir(
+            "--checkpoint",
+            args.checkpoint,
+            "a model folder (gaffer_model.json) or checkpoint-80000/",
+        )
+    base = getattr(args, "base_model", None)
+    if base is not None:
+        checks.need_dir("--base-model", base, "a local Zero-1-to-3 XL diffusers folder")
+    _check_checkpoint_args(args.checkpoint, base)
+
+
+def _check_envmap_arg(path: Path) -> None:
+    if not path.exists() and not path.suffix:
+        from gaffer_envmap.bundled import bundled_hdris
+
+        names = ", ".join(sorted(bundled_hdris()))
+        raise InputValueError(
+            f"`--envmap` {path} is neither a file nor a bundled HDRI; pass an .exr/.hdr file or one "
+            f"of: {names}."
+        )
+    checks.need_file("--envmap", path, "an equirectangular .exr or .hdr map")
+    if path.suffix.lower() not in _ENVMAP_SUFFIXES:
+        raise InputValueError(
+            f"`--envmap` {path} is not an .exr or .hdr file; pass an equirectangular HDR map."
+        )
+
+
+def _check_lighting_args(args: argparse.Namespace) -> None:
+    if args.envmaps is not None:
+        checks.need_dir("--envmaps", args.envmaps, "a folder of .exr/.hdr maps")
+        _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
+    elif args.ldr is not None or args.hdr is not None:
+        if args.ldr is None or args.hdr is None or args.envmap is not None:
+            raise ConfigError("Pass both `--ldr` and `--hdr` (pre-encoded maps) and no `--envmap`.")
+        if args.turntable > 1:
+            raise ConfigError("`--turntable` needs `--envmap` (pre-encoded maps cannot be spun).")
+        checks.image_size("--ldr", args.ldr)
+        checks.image_size("--hdr", args.hdr)
+        return
+    elif args.envmap is None:
+        raise ConfigError(
+            "Pass `--envmap ENV.exr` (or `--envmaps DIR`) with a pose, or pre-encoded `--ldr` and "
+            "`--hdr` maps."
+        )
+    else:
+        _check_envmap_arg(args.envmap)
+    _pose(args)  # reads and checks --w2c, or --azimuth/--elevation (numpy only)
+
+
+def _check_turntable_memory(args: argparse.Namespace, width: int, height: int) -> None:
+    """`--turntable N` keeps N frames (and N lighting pairs) in memory: refuse what cannot fit."""
+    side = (
+        128 if args.checkpoint is None else 512
+    )  # the model's resolution (512: the largest preset)
+    out_px = side * side if args.output_size == "model" else width * height
+    per_frame = 3 * 4 * out_px + 2 * 2 * 3 * side * side * 4  # frames + animation copies; E_L, E_H
+    checks.fits_in_memory("--turntable", args.turntable * per_frame, f"{args.turntable} frames")
+
+
+def _validate_relight(args: argparse.Namespace) -> None:
+    checks.need_path(
+        "IMAGE", args.image, "an object image (RGBA, or RGB with --mask) or a folder of them"
+    )
+    checks.int_range("--turntable", args.turntable, 0, checks.MAX_FRAMES, "e.g. 24")
+    checks.finite("--fps", args.fps, 0.0, checks.MAX_FPS, lo_open=True)
+    grid = args.image.is_dir() or args.envmaps is not None
+    if grid and args.turntable:
+        raise ConfigError(
+            "`--turntable` spins one map around one image; it cannot be combined with a folder of "
+            "images or `--envmaps DIR`. Relight the folder without `--turntable`."
+        )
+    if args.envmaps is not None and (args.envmap is not None or args.ldr is not None):
+        raise ConfigError("Pass `--envmaps DIR` or `--envmap` / `--ldr --hdr`, not both.")
+    _check_sampling_args(args)
+    _check_lighting_args(args)
+    if isinstance(args.mask, Path):
+        checks.need_path("--mask", args.mask, "the object mask (white = object), or 'auto'")
+    if args.sam_checkpoint is not None:
+        checks.need_file("--sam-checkpoint", args.sam_checkpoint, "a Segment Anything checkpoint")
+    _check_photo_flags(args)
+    _check_model_args(args)
+    if grid:
+        checks.writable_dir("--out", args.out)
+        return
+    width, height = checks.image_size("IMAGE", args.image)
+    checks.writable_file("--out", args.out)
+    if args.turntable > 1:
+        from gaffer_diffusion._video import mp4_encoder
+
+        if args.video == "mp4" and mp4_encoder() is None:
+            raise MissingDependencyError(
+                "`--video mp4` needs an MP4 encoder: an `ffmpeg` binary on PATH or PyAV "
+                '(`pip install av`). Neither is installed; use `--video gif` (or "auto").'
+            )
+        _check_turntable_memory(args, width, height)
+
+
+def _validate_evaluate(args: argparse.Namespace) -> None:
+    for flag, path in (("--json", args.json), ("--markdown", args.markdown)):
+        if path is not None:
+            checks.writable_file(flag, path)
+    if args.no_perceptual and args.lpips_backbone is not None:
+        raise ConfigError("Pass `--lpips-backbone` or `--no-perceptual`, not both.")
+    if args.lpips_backbone is not None:
+        checks.need_file("--lpips-backbone", args.lpips_backbone, "torchvision AlexNet weights")
+    if args.dataset is None:
+        for flag, path in (("--pred", args.pred), ("--gt", args.gt), ("--mask-dir", args.mask_dir)):
+            if path is not None:
+                checks.need_dir(flag, path, "a folder of images")
+        return
+    checks.need_dir("--dataset", args.dataset, "a gaffer-data render folder")
+    if not (args.dataset / "dataset.json").is_file() and not (args.dataset / "objects").is_dir():
+        raise InputValueError(
+            f"`--dataset` {args.dataset} is not a gaffer-data dataset (no dataset.json, no "
+            "objects/); pass the folder `gaffer-data render --out` wrote."
+        )
+    if args.envmaps is not None:
+        checks.need_dir("--envmaps", args.envmaps, "the folder of the maps the dataset was lit by")
+    checks.int_range("--limit", args.limit, 1, 2**31, "pairs to evaluate")
+    if isinstance(args.input_lighting, int) and args.input_lighting < 0:
+        raise ConfigError(
+            f"`--input-lighting` is {args.input_lighting}; expected a lighting index >= 0 or 'area'."
+        )
+    if args.save_predictions is not None:
+        checks.writable_dir("--save-predictions", args.save_predictions)
+    _check_sampling_args(args)
+    _object_fraction(args)
+    _check_model_args(args)
+
+
+def _validate_demo(args: argparse.Namespace) -> None:
+    checks.replaceable_dir("--out", args.out)
+    if args.checkpoint is not None:
+        checks.need_dir("--checkpoint", args.checkpoint, "a model folder in our format")
+        if not (args.checkpoint / MANIFEST_NAME).is_file():
+            raise ConfigError(
+                f"`--checkpoint` {args.checkpoint} has no {MANIFEST_NAME}: the demo takes a model "
+                "folder in our format (`gaffer-diffusion export` or `init-random` writes one)."
+            )
+    if args.example is not None:
+        checks.need_dir("--example", args.example, "a gaffer-data render folder")
+    checks.int_range("--steps", args.steps, 1, checks.MAX_STEPS, "gaffer-tiny: 1, the paper: 50")
+    checks.finite("--guidance", args.guidance, 0.0, 100.0)
+    checks.int_range("--average-samples", args.average_samples, 1, checks.MAX_AVERAGE_SAMPLES)
+    checks.int_range("--frames", args.frames, 0, checks.MAX_FRAMES, "0: no turntable; e.g. 24")
+    checks.finite("--fps", args.fps, 0.0, checks.MAX_FPS, lo_open=True)
+    checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
+    checks.int_range("--batch-size", args.batch_size, 1, checks.MAX_BATCH)
+    checks.int_range("--threads", args.threads, 1, 1024, "torch CPU threads; 1 is best here")
+    if args.object_fraction is not None:
+        checks.finite("--object-fraction", args.object_fraction, 0.0, 1.0, lo_open=True)
+    if args.turntable_hdri is not None:
+        from gaffer_envmap.bundled import bundled_hdris
+
+        names = sorted(bundled_hdris())
+        if args.turntable_hdri not in names:
+            raise ConfigError(
+                f"`--turntable-hdri` is {args.turntable_hdri!r}; pass one of the bundled HDRIs: "
+                f"{', '.join(names)}."
+            )
+    _check_device_cheaply(args.device)
+
+
+def _validate_prepare(args: argparse.Namespace) -> None:
+    checks.int_range("--size", args.size, 8, checks.MAX_SIDE, "the model resolution, e.g. 256")
+    checks.image_size("IMAGE", args.image)
+    if isinstance(args.mask, Path):
+        checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
+    checks.writable_file("--out", args.out)
+
+
 def _envmap_path(value: str) -> Path:
     """`--envmap`: a file, or the name of an HDRI bundled with gaffer-envmap (issue 17)."""
     path = Path(value)
@@ -714,23 +983,17 @@ def _envmap_path(value: str) -> Path:
 
 
 def _relight(args: argparse.Namespace) -> int:
-    if args.turntable < 0 or args.batch_size < 1:
-        raise ConfigError("`--turntable` must be >= 0 and `--batch-size` >= 1.")
+    _validate_relight(args)  # every flag and file, before torch is imported or weights load
     grid = args.image.is_dir() or args.envmaps is not None
-    if grid and args.turntable:
-        raise ConfigError(
-            "`--turntable` spins one map around one image; it cannot be combined with a folder of "
-            "images or `--envmaps DIR`. Relight the folder without `--turntable`."
-        )
-    if args.envmaps is not None and (args.envmap is not None or args.ldr is not None):
-        raise ConfigError("Pass `--envmaps DIR` or `--envmap` / `--ldr --hdr`, not both.")
-    _check_photo_flags(args)
-    _check_checkpoint_args(args.checkpoint, args.base_model)
     if grid:
         return _relight_grid(args)
     # the photo and its mask are read and checked before any weights load
     stem = args.out.with_suffix("")
     photo, alpha, mask_note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
+    from gaffer_diffusion.photo import prepare_photo
+    from gaffer_diffusion.pipelines import RelightPipeline
+
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     size = model.config.resolution
@@ -757,16 +1020,33 @@ def _relight(args: argparse.Namespace) -> int:
         x for x in (_size_note(args, frames[0]), _background_note(args), mask_note) if x
     )
     if args.turntable > 1:
-        from gaffer_diffusion._video import write_animation
-
-        for k, frame in enumerate(frames):
-            _save_png(Path(f"{stem}_{k:03d}.png"), frame)
-        video = write_animation([f[..., :3] for f in frames], stem, fmt=args.video, fps=args.fps)
+        video = _write_turntable(args, stem, frames)
         print(f"wrote {len(frames)} frames {stem}_000.png ... and {video}; {notes}")
     else:
         _save_png(args.out, frames[0])
         print(f"wrote {args.out}; {notes}")
     return 0
+
+
+def _write_turntable(args: argparse.Namespace, stem: Path, frames: list[np.ndarray]) -> Path:
+    """`STEM_000.png ...` and the animation, complete or absent (issue 17): written to a hidden
+    staging folder, then moved in; an earlier run's frames of this prefix (more of them, or the other
+    video format) are removed only then, so no mix of old and new frames is left."""
+    import glob
+
+    from gaffer_diffusion._atomic_dir import staged_files
+    from gaffer_diffusion._video import write_animation
+
+    name = glob.escape(stem.name)
+    digits = "[0-9]" * 3
+    stale = [f"{name}_{digits}.png", f"{name}_{digits}[0-9].png", f"{name}.gif", f"{name}.mp4"]
+    with staged_files(stem.parent, stale) as stage:
+        for k, frame in enumerate(frames):
+            _save_png(stage / f"{stem.name}_{k:03d}.png", frame)
+        video = write_animation(
+            [f[..., :3] for f in frames], stage / stem.name, fmt=args.video, fps=args.fps
+        )
+    return stem.parent / video.name
 
 
 def _size_note(args: argparse.Namespace, image: np.ndarray) -> str:
@@ -822,6 +1102,12 @@ def _relight_grid(args: argparse.Namespace) -> int:
         notes += [note] if note else []
     if not loaded:
         raise InputValueError(f"None of the {len(images)} images could be used; {failed[0]}")
+    import torch
+
+    from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
+    from gaffer_diffusion.photo import prepare_photo
+    from gaffer_diffusion.pipelines import RelightPipeline
+
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     size = model.config.resolution
@@ -872,6 +1158,10 @@ def _relight_grid(args: argparse.Namespace) -> int:
 
 
 def _read_dir_images(folder: Path, names: Sequence[str], channels: str) -> torch.Tensor:
+    import numpy as np
+    import torch
+    from PIL import Image
+
     arrs = []
     for name in names:
         with Image.open(folder / name) as im:
@@ -919,12 +1209,13 @@ def _evaluate(args: argparse.Namespace) -> int:
             "Pass either `--dataset DIR --checkpoint CKPT` (relight and score a rendered dataset) or "
             "`--pred DIR --gt DIR` (score existing predictions), not both."
         )
-    if args.dataset is not None:
-        return _evaluate_dataset(args)
-    if args.pred is None or args.gt is None:
+    if args.dataset is None and (args.pred is None or args.gt is None):
         raise ConfigError(
             "Pass `--dataset DIR --checkpoint CKPT`, or both `--pred DIR` and `--gt DIR`."
         )
+    _validate_evaluate(args)  # every flag and file, before torch is imported or weights load
+    if args.dataset is not None:
+        return _evaluate_dataset(args)
     return _evaluate_folders(args)
 
 
@@ -940,6 +1231,8 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
         limit=args.limit,
     )
     perceptual = _perceptual_arg(args)
+    from gaffer_diffusion.pipelines import RelightPipeline
+
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     config = EvaluationConfig(
@@ -1003,10 +1296,11 @@ def _evaluate_folders(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
+    _validate_demo(args)
+    import torch
+
     from gaffer_diffusion.demo import DemoConfig, run_demo
 
-    if args.threads < 1:
-        raise ConfigError(f"`--threads` is {args.threads}; expected >= 1.")
     torch.set_num_threads(args.threads)
     config = DemoConfig(
         out=args.out,
@@ -1021,7 +1315,7 @@ def _demo(args: argparse.Namespace) -> int:
         fps=args.fps,
         seed=args.seed,
         batch_size=args.batch_size,
-        device=args.device,
+        device=_device(args),
         extra_hdris=not args.no_extra_hdris,
         keep_background=not args.full_frame,
         compat=args.compat,
@@ -1071,11 +1365,12 @@ def _add_authors_commands(sub: Any) -> None:
 
 
 def _prepare(args: argparse.Namespace) -> int:
-    if args.size < 1:
-        raise ConfigError(
-            f"`--size` is {args.size}; expected >= 1 (the model resolution, e.g. 256)."
-        )
+    _validate_prepare(args)
     _check_photo_flags(args)
+    import numpy as np
+
+    from gaffer_diffusion.photo import prepare_photo
+
     photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
     prepared = prepare_photo(photo, alpha, size=args.size, compat=args.compat).model_input
     mask_out = args.out.with_name(f"{args.out.stem}_mask.png")
@@ -1088,6 +1383,7 @@ def _prepare(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    # no early refusal here: `check` reports missing folders in its own report (exit status 2)
     from gaffer_diffusion.release_check import check_release
 
     result = check_release(args.checkpoint, args.base_model)
@@ -1096,6 +1392,12 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _init_random(args: argparse.Namespace) -> int:
+    checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
+    checks.writable_dir("--out", args.out)
+    from gaffer_diffusion.configs import get_preset
+    from gaffer_diffusion.loading import save_pretrained
+    from gaffer_diffusion.models.build import build_model
+
     model = build_model(get_preset(args.preset), seed=args.seed)
     save_pretrained(model, args.out)
     print(f"wrote a random-weight {args.preset} model to {args.out}")
@@ -1115,9 +1417,15 @@ def _training_module(what: str) -> Any:
 
 
 def _export(args: argparse.Namespace) -> int:
-    load_checkpoint_model = _training_module("Exporting").loop.load_checkpoint_model
+    checks.need_dir(
+        "checkpoint", args.checkpoint, "a checkpoint-NNNNNNNN/ folder of a training run"
+    )
+    checks.writable_dir("--out", args.out)
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"`--out` {args.out} exists and is not empty; pass a new folder.")
+    load_checkpoint_model = _training_module("Exporting").loop.load_checkpoint_model
+    from gaffer_diffusion.loading import save_pretrained
+
     model = load_checkpoint_model(args.checkpoint, use_ema=not args.raw)
     out = save_pretrained(model, args.out)
     print(f"wrote {'trained' if args.raw else 'EMA'} weights of {args.checkpoint} to {out}")
@@ -1125,6 +1433,17 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _train(args: argparse.Namespace) -> int:
+    import json
+
+    checks.need_file(
+        "--config", args.config, "a training config JSON (packages/gaffer-diffusion/configs/)"
+    )
+    try:
+        json.loads(args.config.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise InputValueError(
+            f"`--config` {args.config} is not valid JSON ({exc}); fix the file."
+        ) from exc
     training = _training_module("Training")
     load_config, train = training.load_config, training.train
     result = train(load_config(args.config), resume=args.resume)

@@ -16,21 +16,19 @@ antialias), [-1, 1] -> [0, 1], OpenAI mean/std.
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import torch
 import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion._choices import LatentMode as LatentMode  # the CLI's choices, torch-free
 from gaffer_diffusion._validate import check_image_batch, check_unit_range
 from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.errors import MissingDependencyError, ShapeError
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_envmap.compat_mode import Compat
-
-LatentMode = Literal["mode", "sample"]
-"""How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""
 
 CompatMode = Compat
 """gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""

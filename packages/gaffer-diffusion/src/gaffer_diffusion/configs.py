@@ -24,10 +24,11 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from gaffer_diffusion import _choices
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.hints import HINT_CHANNELS
 
-PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny"]
+PresetName = _choices.PresetName
 
 VAEKind = Literal["autoencoder-kl", "pixel"]
 """What stands in the VAE's place: diffusers' `AutoencoderKL`, or the exact, parameter-free
@@ -423,7 +424,7 @@ def _gaffer_tiny() -> ModelConfig:
     )
 
 
-PRESETS: tuple[PresetName, ...] = ("neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny")
+PRESETS = _choices.PRESETS
 
 
 def get_preset(name: PresetName) -> ModelConfig:

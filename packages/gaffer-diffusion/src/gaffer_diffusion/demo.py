@@ -21,7 +21,6 @@ quantised to 8 bits; renders at another resolution than the model's are resized 
 """
 
 import datetime
-import json
 import logging
 import math
 import platform
@@ -37,6 +36,8 @@ from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion import pretrained
+from gaffer_diffusion._atomic_dir import atomic_dir
+from gaffer_diffusion._json import json_dumps
 from gaffer_diffusion._version import __version__
 from gaffer_diffusion.conditioning import CompatMode, LightingMaps, RelightingConditions
 from gaffer_diffusion.errors import (
@@ -598,29 +599,35 @@ def _side_by_side(*images: np.ndarray, scale: int = GIF_SCALE) -> np.ndarray:
     return row.repeat(scale, axis=0).repeat(scale, axis=1)
 
 
-def _prepare_out(out: Path) -> Path:
+DEMO_OUTPUTS = frozenset(
+    {
+        "inputs",
+        "lighting",
+        "relit",
+        "ground_truth",
+        "turntable",
+        "turntable.gif",
+        "overview.png",
+        "metrics.json",
+        "report.html",
+    }
+)
+"""What the demo writes at the top of its folder. A rerun replaces exactly these, all at once; other
+entries (gaffer-envmap's `envmap/` demo, a user's notes) are carried into the new folder."""
+
+
+def _check_out(out: Path) -> Path:
+    """`out` can hold the demo: a folder or absent, in a writable place (checked before any work)."""
+    from gaffer_diffusion import _cli_checks
+
     out = Path(out).expanduser()
     if out.exists() and not out.is_dir():
         raise ConfigError(
             f"`--out` {out} is a file, not a folder. Pass a folder for the demo's images and "
             "report (it is created if missing)."
         )
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"`--out` {out} cannot be created: {exc}.") from exc
+    _cli_checks.replaceable_dir("--out", out)
     return out
-
-
-def _finite(o: object) -> object:
-    """JSON-safe copy: non-finite floats (identical images score PSNR inf) become strings."""
-    if isinstance(o, float) and not math.isfinite(o):
-        return str(o)
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, list | tuple):
-        return [_finite(v) for v in o]
-    return o
 
 
 def _scores(report: MetricsReport, i: int) -> dict[str, Any]:
@@ -698,7 +705,7 @@ def run_demo(
         PosixPath('out/demo/report.html')
     """
     t_start = time.perf_counter()
-    out = _prepare_out(config.out)
+    out = _check_out(config.out)
     loaded = load_model(config.checkpoint)
     pipe = RelightPipeline(loaded.model, RuntimeConfig(device=config.device))
     t_loaded = time.perf_counter()
@@ -751,46 +758,47 @@ def run_demo(
     )
     t_scored = time.perf_counter()
 
-    files = _write_images(out, example, jobs, relit, config)
-    t_written = time.perf_counter()
-    timings = _Timings(
-        load_model_s=t_loaded - t_start,
-        prepare_s=t_prepared - t_loaded,
-        sampling_s=t_sampled - t_prepared,
-        batches_s=batch_seconds,
-        metrics_s=t_scored - t_sampled,
-        write_s=t_written - t_scored,
-        total_s=t_written - t_start,
-        images=len(jobs),
-    )
-    settings = _settings(config, loaded, pipe, sampling, example_root, example, len(jobs))
-    settings["lighting_encoding"] = f"gaffer-envmap, compat={compat!r}"
-    settings["framing"] = (
-        "whole render"
-        if fraction is None
-        else f"object-centred square crop, object spans {fraction:g} of the side"
-    )
-    perceptual_info = {
-        "name": None if perceptual is None else perceptual.name,
-        "source": None if perceptual is None else perceptual.source,
-        "unavailable_reason": reason,
-    }
-    metrics = _metrics_document(
-        settings=settings,
-        timings=timings,
-        perceptual=perceptual_info,
-        model_report=model_report,
-        baseline=baseline,
-        example=example,
-        jobs=jobs,
-        files=files,
-        config=config,
-    )
-    metrics_json = out / "metrics.json"
-    _write_text(metrics_json, json.dumps(_finite(metrics), indent=2) + "\n")
-    content = _report_content(metrics, jobs, files, model_report, baseline, perceptual_info)
-    report_html = out / "report.html"
-    _write_text(report_html, render_html(content))
+    # complete or absent (issue 17): built in a hidden sibling, renamed over an earlier run at the end
+    with atomic_dir(out, owned=DEMO_OUTPUTS) as stage:
+        files = _write_images(stage, example, jobs, relit, config)
+        t_written = time.perf_counter()
+        timings = _Timings(
+            load_model_s=t_loaded - t_start,
+            prepare_s=t_prepared - t_loaded,
+            sampling_s=t_sampled - t_prepared,
+            batches_s=batch_seconds,
+            metrics_s=t_scored - t_sampled,
+            write_s=t_written - t_scored,
+            total_s=t_written - t_start,
+            images=len(jobs),
+        )
+        settings = _settings(config, loaded, pipe, sampling, example_root, example, len(jobs))
+        settings["lighting_encoding"] = f"gaffer-envmap, compat={compat!r}"
+        settings["framing"] = (
+            "whole render"
+            if fraction is None
+            else f"object-centred square crop, object spans {fraction:g} of the side"
+        )
+        perceptual_info = {
+            "name": None if perceptual is None else perceptual.name,
+            "source": None if perceptual is None else perceptual.source,
+            "unavailable_reason": reason,
+        }
+        metrics = _metrics_document(
+            settings=settings,
+            timings=timings,
+            perceptual=perceptual_info,
+            model_report=model_report,
+            baseline=baseline,
+            example=example,
+            jobs=jobs,
+            files=files,
+            config=config,
+        )
+        _write_text(stage / "metrics.json", json_dumps(metrics, indent=2) + "\n")
+        content = _report_content(metrics, jobs, files, model_report, baseline, perceptual_info)
+        _write_text(stage / "report.html", render_html(content))
+    metrics_json, report_html = out / "metrics.json", out / "report.html"
     seconds = time.perf_counter() - t_start
     logger.info("demo finished in %.1f s: %s", seconds, report_html)
     return DemoResult(

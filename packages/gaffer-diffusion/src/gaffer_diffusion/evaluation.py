@@ -22,11 +22,10 @@ gaffer-data is imported lazily, only here: `pip install "gaffer-diffusion[eval]"
 """
 
 import functools
-import json
 import logging
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, NoReturn
 
@@ -37,6 +36,7 @@ from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
+from gaffer_diffusion._json import json_dumps
 from gaffer_diffusion.conditioning import (
     CompatMode,
     LightingMaps,
@@ -230,17 +230,16 @@ class DatasetEvaluation:
         return text + f"; {len(r.items)} pairs"
 
     def to_json(self) -> str:
-        """Settings, timing and the full report as one JSON document."""
-        return json.dumps(
+        """Settings, timing and the full report as one strict JSON document: an infinite PSNR is
+        null, with its JSON Pointer under `"non_finite"` (`gaffer_diffusion._json`)."""
+        return json_dumps(
             {
                 "settings": self.settings,
                 "summary": self.summary(),
                 "closer_than_input": self.closer_than_input,
                 "seconds": round(self.seconds, 3),
-                "metrics": json.loads(self.report.to_json()),
-                "baseline_unrelit_input": None
-                if self.baseline is None
-                else json.loads(self.baseline.to_json()),
+                "metrics": asdict(self.report),
+                "baseline_unrelit_input": None if self.baseline is None else asdict(self.baseline),
             },
             indent=2,
         )
@@ -289,6 +288,35 @@ def _resolve_envmap(
         "Pass the folder holding the maps the dataset was rendered with as `--envmaps DIR` "
         "(`envmap_dirs`)."
     )
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _verified_envmap(path: Path, name: str, expected: str, moved: bool) -> Path:
+    """`path`, once its sha256 matches the `source_sha256` its manifest recorded (issue 17): a map of
+    the right name but other content would score every pair against the wrong lighting."""
+    if not expected:
+        return path  # an older manifest without the digest: nothing to check against
+    actual = _sha256(path)
+    if actual != expected.lower():
+        fix = (
+            "pass `--envmaps DIR` with the maps the dataset was rendered with"
+            if moved
+            else "restore the original map, or pass `--envmaps DIR` with the maps it was rendered with"
+        )
+        raise DatasetError(
+            f"Environment map `{path}` is not the `{name}` this dataset was rendered with: its "
+            f"sha256 is {actual[:12]}..., the manifest records {expected[:12]}...; {fix}."
+        )
+    return path
 
 
 def dataset_pairs(
@@ -411,7 +439,9 @@ def _render_pairs(
 ) -> list[EvalPair]:
     dirs = tuple(Path(d) for d in envmap_dirs)
     resolve = functools.lru_cache(maxsize=None)(
-        lambda source, name: _resolve_envmap(source, name, root, dirs)
+        lambda source, name, sha: _verified_envmap(
+            _resolve_envmap(source, name, root, dirs), name, sha, bool(dirs)
+        )
     )
     pairs: list[EvalPair] = []
     skipped_same = 0
@@ -448,7 +478,7 @@ def _render_pairs(
                         target_image=obj.path(lit.png),
                         mask=None if view.alpha is None else obj.path(view.alpha),
                         lighting=EnvmapLighting(
-                            source=resolve(ref.source, ref.name),
+                            source=resolve(ref.source, ref.name, ref.source_sha256),
                             flip=bool(ref.flip),
                             yaw_step=int(ref.yaw_step),
                             num_steps=int(ref.num_steps),

@@ -20,8 +20,6 @@
 """
 
 import importlib.util
-import json
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -30,6 +28,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion._json import json_dumps
 from gaffer_diffusion._perceptual import LpipsAlex, StLpipsAlex
 from gaffer_diffusion._validate import check_image_batch
 from gaffer_diffusion.errors import (
@@ -304,18 +303,9 @@ class MetricsReport:
     mean_object_aligned: ImageScores | None = None
 
     def to_json(self) -> str:
-        """The report as JSON (`inf` PSNR written as a string)."""
-
-        def fix(o: object) -> object:
-            if isinstance(o, float) and not math.isfinite(o):
-                return str(o)
-            if isinstance(o, dict):
-                return {k: fix(v) for k, v in o.items()}
-            if isinstance(o, list):
-                return [fix(v) for v in o]
-            return o
-
-        return json.dumps(fix(asdict(self)), indent=2)
+        """The report as strict JSON: an infinite PSNR (identical images) is written as null and
+        its JSON Pointer listed under `"non_finite"` (`gaffer_diffusion._json`); never `Infinity`."""
+        return json_dumps(asdict(self), indent=2)
 
     def to_markdown(self) -> str:
         """A markdown table of the means, each row labelled."""

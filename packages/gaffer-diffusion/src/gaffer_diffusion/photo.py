@@ -25,6 +25,12 @@ from PIL import Image, ImageOps
 from torch import Tensor
 
 from gaffer_diffusion import detail_transfer as dt
+
+# the command line's choices, defined where the parser reads them without torch (issue 17)
+from gaffer_diffusion._choices import BACKDROP_FOV_DEG as BACKDROP_FOV_DEG
+from gaffer_diffusion._choices import Background as Background
+from gaffer_diffusion._choices import DetailMode as DetailMode
+from gaffer_diffusion._choices import OutputSize as OutputSize
 from gaffer_diffusion.errors import InputValueError
 from gaffer_diffusion.preprocess import (
     ALPHA_THRESHOLD,
@@ -35,18 +41,6 @@ from gaffer_diffusion.preprocess import (
     prepare_object_image,
     prepare_object_image_neural_gaffer,
 )
-
-OutputSize = Literal["input", "model"]
-"""`input`: the photo's own size, object pasted back (default); `model`: the model's square crop."""
-
-DetailMode = Literal["transfer", "resize"]
-"""How the low-resolution result reaches full size: shading ratio on the photo, or bicubic upsampling."""
-
-Background = Literal["input", "envmap"]
-"""Around the object: the photo's own pixels, or the target environment as the camera sees it."""
-
-BACKDROP_FOV_DEG = 39.6
-"""Horizontal field of view of the `--background envmap` camera: Blender's default 50 mm lens on 36 mm."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -13,7 +13,7 @@ step by step instead (issue 15, reading 3; docs/encodings.md lists the steps and
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, assert_never
+from typing import assert_never
 
 import numpy as np
 import torch
@@ -21,12 +21,13 @@ from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
+from gaffer_diffusion import _choices
 from gaffer_diffusion.errors import InputValueError
 
 ALPHA_THRESHOLD = 0.5
 """Alpha above this counts as object when computing the bounding box."""
 
-PrepareCompat = Literal["default", "neural-gaffer"]
+PrepareCompat = _choices.PrepareCompat
 """How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps."""
 
 NG_THUMBNAIL = 512

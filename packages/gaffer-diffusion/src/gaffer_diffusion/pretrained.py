@@ -12,9 +12,14 @@ Example:
 
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointNotFoundError
-from gaffer_diffusion.loading import MANIFEST_NAME, LoadResult, load_pretrained
+
+# `loading` imports torch and diffusers; the CLI reads this module's constants first
+if TYPE_CHECKING:
+    from gaffer_diffusion.loading import LoadResult
 
 GAFFER_TINY_STEPS = 1
 """DDIM steps gaffer-tiny was evaluated with (its model card's numbers); the suggested default."""
@@ -58,7 +63,7 @@ def example_dataset_path() -> Path:
     return _package_dir("data", "example")
 
 
-def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
+def load_gaffer_tiny(*, strict: bool = True) -> "LoadResult":
     """Load gaffer-tiny (float32, CPU, eval mode); `RelightPipeline(load_gaffer_tiny().model)` samples.
 
     Args:
@@ -76,6 +81,8 @@ def load_gaffer_tiny(*, strict: bool = True) -> LoadResult:
     ):
         if not needed.is_file():
             raise CheckpointNotFoundError(what, [needed], _HOW)
+    from gaffer_diffusion.loading import load_pretrained
+
     return load_pretrained(root, strict=strict)
 
 

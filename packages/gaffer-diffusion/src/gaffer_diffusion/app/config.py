@@ -9,8 +9,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from gaffer_diffusion._choices import MANIFEST_NAME  # torch-free (loading imports diffusers)
 from gaffer_diffusion.errors import ConfigError
-from gaffer_diffusion.loading import MANIFEST_NAME
 
 GAFFER_TINY_LABEL = "gaffer-tiny (shipped)"
 """The model picker's default entry, the model shipped inside the package."""

@@ -5,20 +5,17 @@ steps, epsilon prediction). DDIM with 50 "leading" steps and eta 0 is the paper'
 (2M) and UniPC (bh2) are diffusers' high-order solvers that reach similar quality in fewer steps.
 """
 
-from typing import Literal, assert_never
+from typing import assert_never
 
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from diffusers.schedulers.scheduling_dpmsolver_multistep import DPMSolverMultistepScheduler
 from diffusers.schedulers.scheduling_unipc_multistep import UniPCMultistepScheduler
 from diffusers.schedulers.scheduling_utils import SchedulerMixin
 
+from gaffer_diffusion._choices import SCHEDULERS as SCHEDULERS  # the CLI's choices, torch-free
+from gaffer_diffusion._choices import SchedulerName as SchedulerName
 from gaffer_diffusion.configs import SchedulerConfig
 from gaffer_diffusion.errors import ConfigError
-
-SchedulerName = Literal["ddim", "dpmsolver++", "unipc"]
-"""Sampler names accepted by `make_scheduler` and the pipeline."""
-
-SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmsolver++", "unipc")
 
 
 def make_scheduler(

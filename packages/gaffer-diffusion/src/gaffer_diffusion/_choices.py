@@ -1,0 +1,38 @@
+"""The names the command line offers as choices, in a module that imports neither torch nor diffusers.
+
+`gaffer-diffusion` builds its parser and checks its arguments from these before it imports torch or
+loads a model, so that a refusal takes well under a second (issue 17). The modules that use them
+(`photo`, `preprocess`, `schedulers`, `conditioning`, `configs`, `loading`) import them from here.
+"""
+
+from typing import Literal
+
+OutputSize = Literal["input", "model"]
+"""`input`: the photo's own size, object pasted back (default); `model`: the model's square crop."""
+
+DetailMode = Literal["transfer", "resize"]
+"""How the low-resolution result reaches full size: shading ratio on the photo, or bicubic upsampling."""
+
+Background = Literal["input", "envmap"]
+"""Around the object: the photo's own pixels, or the target environment as the camera sees it."""
+
+BACKDROP_FOV_DEG = 39.6
+"""Horizontal field of view of the `--background envmap` camera: Blender's default 50 mm lens on 36 mm."""
+
+PrepareCompat = Literal["default", "neural-gaffer"]
+"""How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps."""
+
+SchedulerName = Literal["ddim", "dpmsolver++", "unipc"]
+"""Sampler names accepted by `make_scheduler` and the pipeline."""
+
+SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmsolver++", "unipc")
+
+LatentMode = Literal["mode", "sample"]
+"""How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""
+
+PresetName = Literal["neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny"]
+
+PRESETS: tuple[PresetName, ...] = ("neural-gaffer-256", "neural-gaffer-512", "tiny", "gaffer-tiny")
+
+MANIFEST_NAME = "gaffer_model.json"
+"""The file that marks a model folder in our format (`gaffer_diffusion.loading.MANIFEST_NAME`)."""

@@ -1,0 +1,192 @@
+"""Cheap checks of command-line arguments, run before torch is imported or a model is loaded (issue 17).
+
+Each check raises `ConfigError` (a value or a combination of flags is wrong) or `InputValueError` (a
+file is missing, empty or not what it should be) with one line that names the flag, the value and
+the fix. Nothing here imports torch, diffusers or numpy: a refusal takes a fraction of a second.
+"""
+
+import math
+import os
+import tempfile
+from pathlib import Path
+
+from gaffer_diffusion.errors import ConfigError, InputValueError
+
+MAX_STEPS = 1000
+"""The noise schedule has 1000 training timesteps; more sampling steps than that do not exist."""
+
+MAX_FRAMES = 3600
+"""Most turntable frames (one every 0.1 degree); the memory check below usually binds first."""
+
+MAX_FPS = 100.0
+"""GIF frame delays are counted in 10 ms units: 100 fps is the fastest a GIF can say."""
+
+MAX_BATCH = 1024
+MAX_AVERAGE_SAMPLES = 256
+MAX_SIDE = 8192
+"""Largest `prepare --size` (an 8192 px float32 RGBA square is about 1 GiB)."""
+
+MAX_SEED = 2**63 - 1
+
+
+def need_path(flag: str, path: Path, what: str) -> None:
+    """`path` exists (file or folder)."""
+    if not path.exists():
+        raise InputValueError(f"`{flag}` {path} does not exist; pass {what}.")
+
+
+def need_file(flag: str, path: Path, what: str) -> None:
+    """`path` is a non-empty, readable file."""
+    need_path(flag, path, what)
+    if path.is_dir():
+        raise InputValueError(f"`{flag}` {path} is a folder, not a file; pass {what}.")
+    if not os.access(path, os.R_OK):
+        raise InputValueError(f"`{flag}` {path} is not readable (permissions); pass {what}.")
+    if path.stat().st_size == 0:
+        raise InputValueError(f"`{flag}` {path} is empty (0 bytes); pass {what}.")
+
+
+def need_dir(flag: str, path: Path, what: str) -> None:
+    """`path` is an existing folder."""
+    need_path(flag, path, what)
+    if not path.is_dir():
+        raise InputValueError(f"`{flag}` {path} is a file, not a folder; pass {what}.")
+
+
+def image_size(flag: str, path: Path) -> tuple[int, int]:
+    """(width, height) of an image file, read from its header only; refuses non-images and 1x1."""
+    need_file(flag, path, "a PNG, JPEG or WebP image")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            w, h = im.size
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise InputValueError(
+            f"`{flag}` {path} is not a readable image ({exc}); pass a PNG, JPEG or WebP image."
+        ) from exc
+    if min(w, h) < 8:
+        raise InputValueError(
+            f"`{flag}` {path} is {w}x{h} px; pass an image of at least 8x8 px showing the object."
+        )
+    return w, h
+
+
+def _existing_ancestor(path: Path) -> Path:
+    p = path.absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return p
+
+
+def _check_creatable(flag: str, path: Path) -> None:
+    """`path` (absent) can be created: its nearest existing ancestor is a writable folder."""
+    anc = _existing_ancestor(path.parent if path.parent != Path("") else Path("."))
+    if not anc.is_dir():
+        raise ConfigError(
+            f"`{flag}` {path} cannot be created: {anc} is a file, not a folder; pass another path."
+        )
+    if not os.access(anc, os.W_OK | os.X_OK) or not _can_create_in(anc):
+        raise ConfigError(
+            f"`{flag}` {path} cannot be created: {anc} is not writable; pass a path in a writable folder."
+        )
+
+
+def _can_create_in(folder: Path) -> bool:
+    """A file can be made in `folder` (a probe, removed at once: permission bits alone do not tell
+    for root, read-only mounts or /proc)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def writable_file(flag: str, path: Path) -> None:
+    """`path` can be written as a file: not a folder, and its folder exists or can be made, writable."""
+    if str(path) in ("", "."):
+        raise ConfigError(f"`{flag}` is empty; pass an output file name.")
+    if path.is_dir():
+        raise ConfigError(
+            f"`{flag}` {path} is a folder; pass a file name (e.g. {path / 'out.png'})."
+        )
+    if path.exists():
+        if not os.access(path, os.W_OK) or not os.access(path.parent, os.W_OK | os.X_OK):
+            raise ConfigError(f"`{flag}` {path} exists and cannot be replaced (permissions).")
+        return
+    _check_creatable(flag, path)
+
+
+def writable_dir(flag: str, path: Path) -> None:
+    """`path` can be written as a folder (it exists as one, writable, or can be created)."""
+    if str(path) in ("", "."):
+        raise ConfigError(f"`{flag}` is empty or the current folder; pass a new output folder.")
+    if path.exists():
+        if not path.is_dir():
+            raise ConfigError(f"`{flag}` {path} is a file, not a folder; pass a folder.")
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise ConfigError(
+                f"`{flag}` {path} is not writable (permissions); pass another folder."
+            )
+        return
+    _check_creatable(flag, path)
+
+
+def replaceable_dir(flag: str, path: Path) -> None:
+    """`path` can be built beside itself and renamed into place (`atomic_dir`): its parent is
+    writable, and an existing `path` is a folder."""
+    writable_dir(flag, path)
+    parent = path.absolute().parent
+    if parent.is_dir() and not (os.access(parent, os.W_OK | os.X_OK) and _can_create_in(parent)):
+        raise ConfigError(
+            f"`{flag}` {path}: its folder {parent} is not writable, and the output is built beside "
+            "it and renamed into place; pass a folder in a writable place."
+        )
+
+
+def int_range(flag: str, value: int | None, lo: int, hi: int, fix: str = "") -> None:
+    """`lo <= value <= hi` (None passes: the default applies)."""
+    if value is not None and not lo <= value <= hi:
+        tail = f" ({fix})" if fix else ""
+        raise ConfigError(f"`{flag}` is {value}; expected an integer in [{lo}, {hi}]{tail}.")
+
+
+def finite(
+    flag: str,
+    value: float | None,
+    lo: float = -math.inf,
+    hi: float = math.inf,
+    *,
+    lo_open: bool = False,
+) -> None:
+    """`value` is finite and in [lo, hi] (or (lo, hi] with `lo_open`); None passes."""
+    if value is None:
+        return
+    ok = math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi
+    if not ok:
+        left = "(" if lo_open else "["
+        raise ConfigError(
+            f"`{flag}` is {value}; expected a finite number in {left}{lo:g}, {hi:g}]."
+        )
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available now (Linux `MemAvailable`), or None when unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def fits_in_memory(flag: str, need: int, what: str) -> None:
+    """Refuse a value whose outputs would need more than the memory available, saying how much."""
+    have = available_memory()
+    if have is not None and need > have:
+        raise ConfigError(
+            f"`{flag}` would need about {need / 2**30:.1f} GiB for {what}, but {have / 2**30:.1f} GiB "
+            "is available; pass a smaller value."
+        )
