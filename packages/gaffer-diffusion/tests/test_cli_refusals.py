@@ -29,6 +29,7 @@ def _files(tmp: Path) -> dict[str, str]:
     np.save(tmp / "w2c_nan.npy", np.full((3, 4), np.nan))
     (tmp / "afile").write_text("a file where a folder is expected")
     (tmp / "garbage.json").write_text("{not json")
+    (tmp / "text.exr").write_text("not an EXR")
     (tmp / "adir").mkdir()
     (tmp / "emptydir").mkdir()
     return {k: str(tmp / k) for k in ("good.png", "afile", "adir", "emptydir")}
@@ -60,6 +61,8 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["relight", good, "--envmap", "city", "--w2c", str(tmp / "w2c_nan.npy"), "--out", out],
          "NaN", out),
         (["relight", good, "--envmap", "city", "--out", out], "--azimuth", out),
+        (["relight", good, "--envmap", str(tmp / "text.exr"), "--azimuth", "0", "--elevation", "0",
+          "--out", out], "not a valid .exr", out),
         (relight("--steps", "0"), "`--steps`", out),
         (relight("--guidance", "inf"), "`--guidance`", out),
         (relight("--batch-size", "0"), "`--batch-size`", out),

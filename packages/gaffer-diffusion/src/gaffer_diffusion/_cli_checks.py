@@ -72,6 +72,27 @@ def image_size(flag: str, path: Path) -> tuple[int, int]:
     return w, h
 
 
+_MAGIC = {".exr": (b"\x76\x2f\x31\x01",), ".hdr": (b"#?",)}
+"""First bytes of an OpenEXR file and of a Radiance RGBE file (`#?RADIANCE` / `#?RGBE`)."""
+
+
+def envmap_file(flag: str, path: Path) -> None:
+    """A non-empty .exr / .hdr file whose first bytes are that format's (no pixels decoded)."""
+    need_file(flag, path, "an equirectangular .exr or .hdr map")
+    magic = _MAGIC.get(path.suffix.lower())
+    if magic is None:
+        raise InputValueError(
+            f"`{flag}` {path} is not an .exr or .hdr file; pass an equirectangular HDR map."
+        )
+    with open(path, "rb") as f:
+        head = f.read(4)
+    if not head.startswith(magic):
+        raise InputValueError(
+            f"`{flag}` {path} is not a valid {path.suffix.lower()} file (wrong first bytes); "
+            "re-export or re-download it."
+        )
+
+
 def _existing_ancestor(path: Path) -> Path:
     p = path.absolute()
     while not p.exists() and p != p.parent:

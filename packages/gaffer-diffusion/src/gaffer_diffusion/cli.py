@@ -591,7 +591,7 @@ def _runtime(args: argparse.Namespace) -> RuntimeConfig:
     from gaffer_diffusion.pipelines import RuntimeConfig
 
     _check_autocast(args)
-    device = _device(args)
+    device = _device(args, check=False)  # checked before the weights load (_load_model callers)
     autocast = args.autocast
     if autocast is None:
         autocast = (
@@ -610,13 +610,16 @@ def _check_autocast(args: argparse.Namespace) -> None:
         )
 
 
-def _device(args: argparse.Namespace) -> str:
-    """`--device`, else cuda when available; a CUDA device this torch cannot use is refused."""
+def _device(args: argparse.Namespace, *, check: bool = True) -> str:
+    """`--device`, else cuda when available; with `check`, a CUDA device this torch cannot use is
+    refused."""
     import torch
 
     if args.device is None:
         return "cuda" if torch.cuda.is_available() else "cpu"
     device = str(args.device)
+    if not check:
+        return device
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise ConfigError(
             f"`--device {device}`: this torch build ({torch.__version__}) sees no CUDA GPU; pass "
@@ -821,17 +824,14 @@ def _check_envmap_arg(path: Path) -> None:
             f"`--envmap` {path} is neither a file nor a bundled HDRI; pass an .exr/.hdr file or one "
             f"of: {names}."
         )
-    checks.need_file("--envmap", path, "an equirectangular .exr or .hdr map")
-    if path.suffix.lower() not in _ENVMAP_SUFFIXES:
-        raise InputValueError(
-            f"`--envmap` {path} is not an .exr or .hdr file; pass an equirectangular HDR map."
-        )
+    checks.envmap_file("--envmap", path)
 
 
 def _check_lighting_args(args: argparse.Namespace) -> None:
     if args.envmaps is not None:
         checks.need_dir("--envmaps", args.envmaps, "a folder of .exr/.hdr maps")
-        _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
+        for m in _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps"):
+            checks.envmap_file("--envmaps", m)
     elif args.ldr is not None or args.hdr is not None:
         if args.ldr is None or args.hdr is None or args.envmap is not None:
             raise ConfigError("Pass both `--ldr` and `--hdr` (pre-encoded maps) and no `--envmap`.")
@@ -847,6 +847,9 @@ def _check_lighting_args(args: argparse.Namespace) -> None:
         )
     else:
         _check_envmap_arg(args.envmap)
+        from gaffer_envmap.io import read_envmap
+
+        read_envmap(args.envmap, sanitize=args.sanitize)  # decoded here too: no torch, fails early
     _pose(args)  # reads and checks --w2c, or --azimuth/--elevation (numpy only)
 
 
@@ -994,6 +997,7 @@ def _relight(args: argparse.Namespace) -> int:
     from gaffer_diffusion.photo import prepare_photo
     from gaffer_diffusion.pipelines import RelightPipeline
 
+    _device(args)  # a CUDA device torch cannot use is refused before the weights load
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     size = model.config.resolution
@@ -1108,6 +1112,7 @@ def _relight_grid(args: argparse.Namespace) -> int:
     from gaffer_diffusion.photo import prepare_photo
     from gaffer_diffusion.pipelines import RelightPipeline
 
+    _device(args)  # a CUDA device torch cannot use is refused before the weights load
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     size = model.config.resolution
@@ -1233,6 +1238,7 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
     perceptual = _perceptual_arg(args)
     from gaffer_diffusion.pipelines import RelightPipeline
 
+    _device(args)  # a CUDA device torch cannot use is refused before the weights load
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     config = EvaluationConfig(
