@@ -161,6 +161,11 @@ def test_render_train_relight_multiview_fit_relight_evaluate(tmp_path: Path) -> 
     unet_file = Path("unet") / "diffusion_pytorch_model.safetensors"
     a, b = load_file(exported / unet_file), load_file(final / unet_file)
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    # the encoding and framing it was trained with travel with the weights (relight below has no
+    # --compat: before, a self-trained model was relit with the authors' encoding unless told)
+    for folder in (final, exported):
+        own = json.loads((folder / "gaffer_model.json").read_text())["suggested_sampling"]
+        assert own["compat"] == "default", own
 
     # -- 3. gaffer-diffusion relight: one rendered view under another map, with the exported model --
     sphere = ds.object("sphere").root
@@ -173,7 +178,7 @@ def test_render_train_relight_multiview_fit_relight_evaluate(tmp_path: Path) -> 
     relit = tmp_path / "relit.png"
     _cli(
         "gaffer_diffusion.cli", "relight", image, "--envmap", envmaps / f"{target}.exr",
-        "--w2c", w2c, "--checkpoint", exported, "--compat", "default", "--steps", "2",
+        "--w2c", w2c, "--checkpoint", exported, "--steps", "2",
         "--guidance", "1", "--seed", "0", "--device", "cpu", "--out", relit,
     )  # fmt: skip
     before, after = _rgba(image), _rgba(relit)

@@ -55,6 +55,7 @@ from gaffer_diffusion.errors import (
     InputValueError,
     MissingDependencyError,
 )
+from gaffer_diffusion.suggested import SuggestedSampling, read_suggested_sampling
 from gaffer_envmap.errors import GafferError
 
 if TYPE_CHECKING:
@@ -71,7 +72,9 @@ logger = logging.getLogger(__name__)
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gaffer-diffusion", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="gaffer-diffusion", description=(__doc__ or "").split("\n\n")[0]
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("relight", help="relight one object image under an environment map")
@@ -503,13 +506,21 @@ def _envmap_lighting(
     return lighting_from_envmap(env, [pose] * n, size=size, compat=_compat(args), spin_deg=spin)
 
 
+def _suggestion(args: argparse.Namespace) -> SuggestedSampling:
+    """The model's own sampling (`gaffer_diffusion.suggested`): the shipped gaffer-tiny's without
+    `--checkpoint`, else what the model folder records (the paper's for the authors' release or a
+    folder that records none). A JSON read, no torch."""
+    checkpoint = getattr(args, "checkpoint", None)
+    return read_suggested_sampling(
+        pretrained.gaffer_tiny_path() if checkpoint is None else Path(checkpoint).expanduser()
+    )
+
+
 def _compat(args: argparse.Namespace) -> Any:
-    """`--compat`, else the model's own encoding: gaffer-tiny's without `--checkpoint`."""
+    """`--compat`, else the lighting encoding the model was trained with (`_suggestion`)."""
     if args.compat is not None:
         return args.compat
-    if getattr(args, "checkpoint", None) is None:
-        return pretrained.GAFFER_TINY_COMPAT
-    return "neural-gaffer"
+    return _suggestion(args).compat
 
 
 def _lighting(args: argparse.Namespace, size: int, frames: int) -> LightingMaps:
@@ -560,20 +571,19 @@ def _progress(total: int, desc: str) -> tqdm[Any]:
 def _sampling(args: argparse.Namespace) -> SamplingConfig:
     from gaffer_diffusion.pipelines import SamplingConfig
 
-    steps, guidance, average = args.steps, args.guidance, args.average_samples
-    mirror = args.mirror_average
-    if getattr(args, "checkpoint", None) is None:  # gaffer-tiny: the settings it was evaluated with
-        steps = pretrained.GAFFER_TINY_STEPS if steps is None else steps
-        guidance = pretrained.GAFFER_TINY_GUIDANCE if guidance is None else guidance
-        average = pretrained.GAFFER_TINY_AVERAGE_SAMPLES if average is None else average
-        mirror = pretrained.GAFFER_TINY_MIRROR_AVERAGE if mirror is None else mirror
+    # every value the user leaves out is the model's own (its folder's `suggested_sampling`)
+    suggested = _suggestion(args)
+
+    def pick(given: Any, own: Any) -> Any:
+        return own if given is None else given
+
     # an explicit 0 is refused by SamplingConfig (it used to mean "the default" silently)
     return SamplingConfig(
-        num_inference_steps=50 if steps is None else steps,
-        guidance_scale=3.0 if guidance is None else guidance,
+        num_inference_steps=pick(args.steps, suggested.num_inference_steps),
+        guidance_scale=pick(args.guidance, suggested.guidance_scale),
         scheduler=args.scheduler,
-        average_samples=1 if average is None else average,
-        mirror_average=bool(mirror),
+        average_samples=pick(args.average_samples, suggested.average_samples),
+        mirror_average=bool(pick(args.mirror_average, suggested.mirror_average)),
         latent_mode=_latent_mode(args),
     )
 
@@ -1204,7 +1214,7 @@ def _object_fraction(args: argparse.Namespace) -> float | None:
                 f"`--object-fraction` is {args.object_fraction}; pass a fraction in (0, 1], e.g. 0.75."
             )
         return float(args.object_fraction)
-    return pretrained.GAFFER_TINY_OBJECT_FRACTION if args.checkpoint is None else None
+    return _suggestion(args).object_fraction
 
 
 def _evaluate(args: argparse.Namespace) -> int:
@@ -1433,7 +1443,12 @@ def _export(args: argparse.Namespace) -> int:
     from gaffer_diffusion.loading import save_pretrained
 
     model = load_checkpoint_model(args.checkpoint, use_ema=not args.raw)
-    out = save_pretrained(model, args.out)
+    from gaffer_diffusion.suggested import suggestion_from_training_config
+    from gaffer_diffusion.training.checkpoint import read_state
+
+    # the encoding, framing and sampler it was trained and validated with travel with the weights
+    suggested = suggestion_from_training_config(read_state(args.checkpoint).config)
+    out = save_pretrained(model, args.out, suggested=suggested)
     print(f"wrote {'trained' if args.raw else 'EMA'} weights of {args.checkpoint} to {out}")
     return 0
 

@@ -249,7 +249,22 @@ def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> Loaded
             "relight --checkpoint checkpoint-80000/ --base-model DIR`."
         )
     model = load_pretrained(path).model
-    return LoadedModel(model=model, name=model.config.name, source=path)
+    from gaffer_diffusion.suggested import PAPER_SUGGESTION, read_suggested_sampling
+
+    own = read_suggested_sampling(path)  # the sampling its folder records (training's, on export)
+    if own is PAPER_SUGGESTION:
+        return LoadedModel(model=model, name=model.config.name, source=path)
+    return LoadedModel(
+        model=model,
+        name=model.config.name,
+        source=path,
+        suggested_steps=own.num_inference_steps,
+        suggested_guidance=own.guidance_scale,
+        suggested_average=own.average_samples,
+        suggested_mirror=own.mirror_average,
+        suggested_compat=own.compat,
+        suggested_object_fraction=own.object_fraction,
+    )
 
 
 def sampling_for(

@@ -34,6 +34,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 from transformers import CLIPVisionModelWithProjection
 
+from gaffer_diffusion._choices import MANIFEST_NAME as MANIFEST_NAME  # re-exported
 from gaffer_diffusion._version import __version__
 from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import CheckpointMismatchError, CheckpointNotFoundError
@@ -41,12 +42,12 @@ from gaffer_diffusion.models.build import config_from_modules
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.models.pixel import PixelAutoencoder, is_pixel_config
 from gaffer_diffusion.models.surgery import expand_conv_in
+from gaffer_diffusion.suggested import SUGGESTION_KEY, SuggestedSampling
 
 logger = logging.getLogger(__name__)
 
 PathLike = str | Path
 
-MANIFEST_NAME = "gaffer_model.json"
 MANIFEST_SCHEMA = "gaffer.diffusion_model"
 MANIFEST_SCHEMA_VERSION = "1.0"
 
@@ -421,9 +422,12 @@ def load_zero123_xl(base_model: PathLike, *, strict: bool = True) -> LoadResult:
     return LoadResult(model=model, report=report)
 
 
-def save_pretrained(model: NeuralGafferModel, directory: PathLike) -> Path:
+def save_pretrained(
+    model: NeuralGafferModel, directory: PathLike, *, suggested: SuggestedSampling | None = None
+) -> Path:
     """Save in our format: `unet/`, `vae/`, `image_encoder/` (safetensors + config.json), the scheduler
-    config, and a `gaffer_model.json` manifest with the full `ModelConfig`.
+    config, and a `gaffer_model.json` manifest with the full `ModelConfig` and, when given, the
+    sampling the model suggests (`gaffer_diffusion.suggested`; without it readers use the paper's).
 
     Returns:
         The directory.
@@ -443,6 +447,8 @@ def save_pretrained(model: NeuralGafferModel, directory: PathLike) -> Path:
         "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "config": dataclasses.asdict(model.config),
     }
+    if suggested is not None:
+        manifest[SUGGESTION_KEY] = suggested.to_json()
     (out / MANIFEST_NAME).write_text(json.dumps(manifest, indent=2))
     return out
 

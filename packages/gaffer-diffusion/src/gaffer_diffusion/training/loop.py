@@ -703,8 +703,13 @@ def train(
             run_validation(state.step)
         if acc.is_main_process:
             from gaffer_diffusion.loading import save_pretrained
+            from gaffer_diffusion.suggested import suggestion_from_training_config
 
-            final_model = save_pretrained(sampling_model(model, unet_module, ema), out / "final")
+            final_model = save_pretrained(
+                sampling_model(model, unet_module, ema),
+                out / "final",
+                suggested=suggestion_from_training_config(cfg.to_dict()),
+            )
         acc.wait_for_everyone()
     log.close()
     if state.skipped_samples:

@@ -142,5 +142,24 @@ def load_relighting_model(
     else:
         model = load_authors_release(path, base_model).model
     return RelightingModel(
-        model=model, name=model.config.name, source=path, suggested=suggested_sampling(model)
+        model=model, name=model.config.name, source=path, suggested=folder_sampling(path, model)
+    )
+
+
+def folder_sampling(folder: Path, model: NeuralGafferModel) -> ModelSampling:
+    """The sampling a model folder records (`gaffer_diffusion.suggested`, written by `gaffer-diffusion
+    export` and training's `final/`), else `suggested_sampling(model)`."""
+    from gaffer_diffusion.suggested import PAPER_SUGGESTION, read_suggested_sampling
+
+    own = read_suggested_sampling(folder)
+    if own is PAPER_SUGGESTION:
+        return suggested_sampling(model)
+    return ModelSampling(
+        num_inference_steps=own.num_inference_steps,
+        guidance_scale=own.guidance_scale,
+        average_samples=own.average_samples,
+        mirror_average=own.mirror_average,
+        compat=own.compat,
+        latent_mode="sample" if own.compat == "neural-gaffer" else "mode",
+        source=own.source,
     )
