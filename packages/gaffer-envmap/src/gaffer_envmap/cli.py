@@ -49,14 +49,34 @@ def _positive_int(text: str) -> int:
 log = logging.getLogger("gaffer_envmap")
 
 
+MAX_SIZE = 8192
+"""Largest `--size` accepted: an 8192 x 16384 float32 map is 1.6 GB; beyond that is a typo."""
+
+
+def _map_size(text: str) -> int:
+    """argparse type: a map side in [1, MAX_SIZE] (100000 would try to allocate hundreds of GB)."""
+    value = _positive_int(text)
+    if value > MAX_SIZE:
+        raise argparse.ArgumentTypeError(f"expected at most {MAX_SIZE}, got {text!r}")
+    return value
+
+
 def _load_w2c(path: str) -> W2CBlender:
     try:
         arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:
         raise GafferEnvmapError(
             f"`--w2c` {path!r} could not be read as a .npy array: {exc}"
         ) from exc
-    return W2CBlender.from_array(arr)
+    if not (np.issubdtype(arr.dtype, np.number) and arr.shape in ((3, 4), (4, 4))):
+        raise GafferEnvmapError(
+            f"`--w2c` {path!r} holds a {arr.dtype} array of shape {arr.shape}; pass a numeric 3x4 "
+            "or 4x4 Blender world-to-camera matrix (np.save('w2c.npy', matrix))."
+        )
+    try:
+        return W2CBlender.from_array(arr.astype(np.float64))
+    except ValueError as exc:
+        raise GafferEnvmapError(f"`--w2c` {path!r}: {exc}") from exc
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
@@ -233,7 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("dst", help="output camera-frame map (.exr, float32; folders are created)")
     sp.add_argument("--w2c", required=True, help="3x4 or 4x4 Blender world-to-camera .npy")
     sp.add_argument(
-        "--size", type=int, default=None, help="output height (width = 2*height); default: source"
+        "--size",
+        type=_map_size,
+        default=None,
+        help=f"output height (width = 2*height; at most {MAX_SIZE}); default: source",
     )
     sp.add_argument(
         "--spin",
@@ -267,7 +290,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="neural-gaffer: bit-compatible with the released checkpoint",
     )
     sp.add_argument(
-        "--size", type=int, default=256, help="side of the square maps in pixels (default: 256)"
+        "--size",
+        type=_map_size,
+        default=256,
+        help="side of the square maps in pixels (default: 256)",
     )
     sp.add_argument(
         "--spin",
@@ -316,7 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument(
         "--size",
-        type=int,
+        type=_map_size,
         default=256,
         help="side of the encoded ldr/hdr maps in pixels (default: 256)",
     )
