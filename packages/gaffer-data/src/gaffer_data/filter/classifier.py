@@ -68,11 +68,21 @@ def read_feature_records(path: str | Path) -> dict[str, ObjectFeatures]:
     Objects rejected by their annotation before loading have no features and are left out.
     """
     out = {}
-    for line in Path(path).read_text(encoding="utf-8").splitlines():
+    how = "pass the JSONL manifest `gaffer-data filter --out` wrote"
+    try:
+        lines = Path(path).read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"`features`={str(path)!r} could not be read ({exc}); {how}.") from exc
+    for n, line in enumerate(lines, 1):
         if line.strip():
-            row = json.loads(line)
-            if row.get("features") is not None:
-                out[row["object_id"]] = ObjectFeatures.from_json(row["features"])
+            try:
+                row = json.loads(line)
+                if row.get("features") is not None:
+                    out[row["object_id"]] = ObjectFeatures.from_json(row["features"])
+            except (json.JSONDecodeError, AttributeError, KeyError, TypeError, ValueError) as exc:
+                raise InputError(
+                    f"`features`={str(path)!r} line {n} is not a filter record ({exc}); {how}."
+                ) from exc
     return out
 
 
