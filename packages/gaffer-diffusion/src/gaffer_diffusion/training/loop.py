@@ -365,7 +365,7 @@ def _make_accelerator(config: TrainConfig) -> Any:
         # 2.6 s in fp32; with AVX512-BF16 bf16 was 10x faster than fp32
         logger.warning(
             "`train.mixed_precision` bf16 on a CPU without native bf16 (no AVX512-BF16/AMX): torch "
-            "emulates it, about 30x slower than fp32 here; set `train.mixed_precision` to \"no\"."
+            'emulates it, about 30x slower than fp32 here; set `train.mixed_precision` to "no".'
         )
     return acc
 
