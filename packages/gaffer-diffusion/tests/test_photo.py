@@ -303,7 +303,8 @@ def test_cli_input_errors_come_before_the_weights(tmp_path, model_dir, monkeypat
     def no_weights(*_a, **_k):
         raise AssertionError("weights were loaded before the input was checked")
 
-    monkeypatch.setattr(cli, "_load_model", no_weights)
+    # the relight command's own reference (cli/relight.py), which it calls
+    monkeypatch.setattr("gaffer_diffusion.cli.relight._load_model", no_weights)
     rgb, _ = _scene(40, 60)
     image = _save(rgb, tmp_path / "p.png")
     _save(np.zeros((30, 20), np.uint8), tmp_path / "small.png")

@@ -1,0 +1,123 @@
+"""Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`.
+
+    gaffer-diffusion demo --out DIR [--checkpoint CKPT] [--steps N] [--frames 24]
+        (README's main job: the shipped example object relit under the bundled HDRIs and a turntable;
+        PNGs, a GIF, metrics.json and report.html)
+    gaffer-diffusion relight IMAGE --envmap ENV.exr (--w2c W2C.npy | --azimuth DEG --elevation DEG)
+        [--checkpoint CKPT] [--base-model DIR] --out OUT.png [--steps N] [--guidance S] [--seed 0]
+        [--turntable N]
+    gaffer-diffusion relight IMAGE --ldr LDR.png --hdr HDR.png --checkpoint CKPT ... (pre-encoded maps)
+    gaffer-diffusion relight IMAGES_DIR --envmaps ENVMAPS_DIR (--w2c | --azimuth --elevation)
+        --checkpoint CKPT --out OUT_DIR   (every image x every map, batched; OUT_DIR/<image>/<map>.png)
+    gaffer-diffusion evaluate --dataset DIR --checkpoint CKPT [--base-model DIR] [--envmaps DIR]
+        [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
+    gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
+    gaffer-diffusion prepare IMAGE --out OUT.png [--mask M] [--compat neural-gaffer|default]
+        (the model-ready square input on white and OUT_mask.png)
+    gaffer-diffusion check --checkpoint DIR --base-model DIR   (validate the authors' release first)
+    gaffer-diffusion init-random --preset tiny --out DIR   (random weights in our format, for demos)
+    gaffer-diffusion train --config CONFIG.json [--resume]   (extra [train]; configs/ has examples)
+    gaffer-diffusion app [--host 127.0.0.1] [--port 7860] [--model DIR]   (extra [app]: the browser app)
+
+`--checkpoint` is either our format (a folder with `gaffer_model.json`) or the authors' release
+(`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
+Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 128 px model shipped in the package.
+
+The code: `parser.py` builds the parser; one module per command group holds its handler and its
+flag checks (`relight.py`, `evaluate.py`, `demo.py`, `authors.py` for prepare/check, `train.py` for
+train/export/init-random); `_common.py`, `_flag_checks.py`, `_lighting.py` and `_photo.py` hold what
+they share. `main` (here) dispatches and turns every error into one line and an exit status.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Sequence
+
+# Only torch-free modules at import time: every argument is checked before torch, diffusers or a
+# model loads, so a refusal takes well under a second (issue 17); the rest is imported where used.
+from gaffer_diffusion.cli._common import (
+    _compat,
+    _latent_mode,
+    _object_fraction,
+    _runtime,
+    _sampling,
+)
+from gaffer_diffusion.cli._lighting import _envmap_lighting
+from gaffer_diffusion.cli._photo import _check_photo_flags
+from gaffer_diffusion.cli.authors import _check, _prepare
+from gaffer_diffusion.cli.demo import _demo
+from gaffer_diffusion.cli.evaluate import _evaluate
+from gaffer_diffusion.cli.parser import _parser
+from gaffer_diffusion.cli.relight import _relight
+from gaffer_diffusion.cli.train import _export, _init_random, _train
+from gaffer_envmap.errors import GafferError
+
+# `main`, and the helpers tests and tools import from `gaffer_diffusion.cli` (the module this was)
+__all__ = [
+    "_check",
+    "_check_photo_flags",
+    "_compat",
+    "_demo",
+    "_envmap_lighting",
+    "_evaluate",
+    "_export",
+    "_init_random",
+    "_latent_mode",
+    "_object_fraction",
+    "_parser",
+    "_prepare",
+    "_relight",
+    "_runtime",
+    "_sampling",
+    "_train",
+    "main",
+]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `gaffer-diffusion` console script; returns the exit status."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        match args.command:
+            case "demo":
+                return _demo(args)
+            case "relight":
+                return _relight(args)
+            case "evaluate":
+                return _evaluate(args)
+            case "init-random":
+                return _init_random(args)
+            case "prepare":
+                return _prepare(args)
+            case "check":
+                return _check(args)
+            case "train":
+                return _train(args)
+            case "export":
+                return _export(args)
+            case "app":
+                from gaffer_diffusion.app import run_app  # Gradio loads only here
+
+                return run_app(args)
+    except GafferError as exc:  # any gaffer package's error (an unreadable EXR is also an OSError)
+        print(f"error: {exc.diagnostics()}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
+        print(
+            "interrupted (Ctrl-C): stopped; files already written are complete "
+            "(train: --resume continues from the last checkpoint)",
+            file=sys.stderr,
+        )
+        return 130
+    except OSError as exc:  # an unwritable or clashing output path, a full disk
+        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
+        return 2
+    except Exception as exc:  # errors from gaffer-envmap (reading EXRs, poses) carry their own fix
+        if type(exc).__module__.startswith("gaffer_envmap"):
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        raise
+    return 1

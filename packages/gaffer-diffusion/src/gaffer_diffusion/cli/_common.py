@@ -1,0 +1,192 @@
+"""Helpers every model command shares: loading the model (`--checkpoint`, `--base-model`), the
+model's suggested sampling, encoding and framing when a flag is left out, the torch device and
+precision, and writing PNGs, progress bars and input folders. torch is imported only inside the
+functions that need it."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from gaffer_diffusion import pretrained
+from gaffer_diffusion._choices import MANIFEST_NAME
+from gaffer_diffusion.errors import ConfigError, InputValueError
+from gaffer_diffusion.suggested import SuggestedSampling, read_suggested_sampling
+
+if TYPE_CHECKING:
+    import numpy as np
+    import torch
+    from tqdm import tqdm
+
+    from gaffer_diffusion.models.model import NeuralGafferModel
+    from gaffer_diffusion.pipelines import RuntimeConfig, SamplingConfig
+
+logger = logging.getLogger("gaffer_diffusion.cli")  # the name log lines carried before the split
+
+
+def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGafferModel:
+    from gaffer_diffusion.loading import load_authors_release, load_pretrained
+
+    if checkpoint is None:
+        from gaffer_diffusion.demo import load_model
+
+        if base_model is not None:
+            raise ConfigError("`--base-model` goes with the authors' `--checkpoint`; pass both.")
+        return load_model(None).model  # logs that (and where from) it uses gaffer-tiny
+    if (checkpoint / MANIFEST_NAME).is_file():
+        return load_pretrained(checkpoint).model
+    if base_model is None:
+        raise _base_model_error(checkpoint)
+    result = load_authors_release(checkpoint, base_model)
+    logger.info("%s", result.report.summary())
+    return result.model
+
+
+def _base_model_error(checkpoint: Path) -> ConfigError:
+    return ConfigError(
+        f"`--checkpoint` {checkpoint} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}), so "
+        "it is taken as the authors' release, which needs `--base-model DIR` (a local Zero-1-to-3 XL "
+        "diffusers folder with vae/, image_encoder/, scheduler/, unet/config.json)."
+    )
+
+
+def _suggestion(args: argparse.Namespace) -> SuggestedSampling:
+    """The model's own sampling (`gaffer_diffusion.suggested`): the shipped gaffer-tiny's without
+    `--checkpoint`, else what the model folder records (the paper's for the authors' release or a
+    folder that records none). A JSON read, no torch."""
+    checkpoint = getattr(args, "checkpoint", None)
+    return read_suggested_sampling(
+        pretrained.gaffer_tiny_path() if checkpoint is None else Path(checkpoint).expanduser()
+    )
+
+
+def _compat(args: argparse.Namespace) -> Any:
+    """`--compat`, else the lighting encoding the model was trained with (`_suggestion`)."""
+    if args.compat is not None:
+        return args.compat
+    return _suggestion(args).compat
+
+
+def _object_fraction(args: argparse.Namespace) -> float | None:
+    if args.object_fraction is not None:
+        if not 0.0 < args.object_fraction <= 1.0:
+            raise ConfigError(
+                f"`--object-fraction` is {args.object_fraction}; pass a fraction in (0, 1], e.g. 0.75."
+            )
+        return float(args.object_fraction)
+    return _suggestion(args).object_fraction
+
+
+def _sampling(args: argparse.Namespace) -> SamplingConfig:
+    from gaffer_diffusion.pipelines import SamplingConfig
+
+    # every value the user leaves out is the model's own (its folder's `suggested_sampling`)
+    suggested = _suggestion(args)
+
+    def pick(given: Any, own: Any) -> Any:
+        return own if given is None else given
+
+    # an explicit 0 is refused by SamplingConfig (it used to mean "the default" silently)
+    return SamplingConfig(
+        num_inference_steps=pick(args.steps, suggested.num_inference_steps),
+        guidance_scale=pick(args.guidance, suggested.guidance_scale),
+        scheduler=args.scheduler,
+        average_samples=pick(args.average_samples, suggested.average_samples),
+        mirror_average=bool(pick(args.mirror_average, suggested.mirror_average)),
+        latent_mode=_latent_mode(args),
+    )
+
+
+def _latent_mode(args: argparse.Namespace) -> Any:
+    """`--latent-mode`, else the authors' posterior sample under `--compat neural-gaffer` (issue 15)."""
+    if args.latent_mode is not None:
+        return args.latent_mode
+    return "sample" if _compat(args) == "neural-gaffer" else "mode"
+
+
+def _runtime(args: argparse.Namespace) -> RuntimeConfig:
+    """Device and precision; `--dtype float16` on CUDA under `--compat neural-gaffer` autocasts the
+    UNet with float32 weights, as the authors run it (official implementation §2)."""
+    from gaffer_diffusion.pipelines import RuntimeConfig
+
+    _check_autocast(args)
+    device = _device(args, check=False)  # checked before the weights load (_load_model callers)
+    autocast = args.autocast
+    if autocast is None:
+        autocast = (
+            args.dtype == "float16"
+            and device.startswith("cuda")
+            and _compat(args) == "neural-gaffer"
+        )
+    return RuntimeConfig(device=device, dtype=args.dtype, autocast=bool(autocast))
+
+
+def _check_autocast(args: argparse.Namespace) -> None:
+    if args.autocast and args.dtype == "float32":
+        raise ConfigError(
+            "`--autocast` runs the UNet in lower precision: add `--dtype float16` (the authors') or "
+            "`--dtype bfloat16`."
+        )
+
+
+def _device(args: argparse.Namespace, *, check: bool = True) -> str:
+    """`--device`, else cuda when available; with `check`, a CUDA device this torch cannot use is
+    refused."""
+    import torch
+
+    if args.device is None:
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    device = str(args.device)
+    if not check:
+        return device
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise ConfigError(
+            f"`--device {device}`: this torch build ({torch.__version__}) sees no CUDA GPU; pass "
+            "`--device cpu`, or install a CUDA build of torch on a machine with a GPU."
+        )
+    if device.startswith("mps") and not torch.backends.mps.is_available():
+        raise ConfigError(f"`--device {device}`: no Apple MPS device here; pass `--device cpu`.")
+    return device
+
+
+def _save_png(path: Path, image: torch.Tensor | np.ndarray) -> None:
+    """Write a PNG atomically: the file is complete or absent (`gaffer_envmap.atomic`)."""
+    import numpy as np
+    from PIL import Image
+
+    from gaffer_envmap.atomic import atomic_path
+
+    arr = image if isinstance(image, np.ndarray) else _to_uint8(image)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        Image.fromarray(arr).save(tmp, format="PNG")
+
+
+def _to_uint8(image: torch.Tensor) -> np.ndarray:
+    import numpy as np
+
+    return (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+
+
+def _progress(total: int, desc: str) -> tqdm[Any]:
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="img", file=sys.stderr)
+
+
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp")
+
+
+_ENVMAP_SUFFIXES = (".exr", ".hdr")
+
+
+def _files(folder: Path, suffixes: tuple[str, ...], what: str, flag: str) -> list[Path]:
+    files = sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes)
+    if not files:
+        raise InputValueError(
+            f"`{flag}` {folder} holds no {what} ({', '.join(suffixes)} files directly in it)."
+        )
+    return files

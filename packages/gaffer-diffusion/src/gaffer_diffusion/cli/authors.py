@@ -1,0 +1,46 @@
+"""`gaffer-diffusion prepare` and `check` (issue 15): the model-ready input the model sees, and
+whether the authors' release (checkpoint-80000/ and a Zero-1-to-3 XL base) is complete."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from gaffer_diffusion import _cli_checks as checks
+from gaffer_diffusion.cli._common import _save_png
+from gaffer_diffusion.cli._photo import _check_photo_flags, _mask_out, _photo_and_mask
+
+
+def _validate_prepare(args: argparse.Namespace) -> None:
+    checks.int_range("--size", args.size, 8, checks.MAX_SIDE, "the model resolution, e.g. 256")
+    checks.image_size("IMAGE", args.image)
+    if isinstance(args.mask, Path):
+        checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
+    checks.writable_file("--out", args.out)
+
+
+def _prepare(args: argparse.Namespace) -> int:
+    _validate_prepare(args)
+    _check_photo_flags(args)
+    import numpy as np
+
+    from gaffer_diffusion.photo import prepare_photo
+
+    photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    prepared = prepare_photo(photo, alpha, size=args.size, compat=args.compat).model_input
+    mask_out = args.out.with_name(f"{args.out.stem}_mask.png")
+    _save_png(args.out, prepared.image[0])
+    arr = (prepared.mask[0, 0].clamp(0, 1).numpy() * 255.0).round().astype(np.uint8)
+    _save_png(mask_out, arr)
+    extra = f"; {note}" if note else ""
+    print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat}){extra}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    # no early refusal here: `check` reports missing folders in its own report (exit status 2)
+    from gaffer_diffusion.release_check import check_release
+
+    result = check_release(args.checkpoint, args.base_model)
+    print(result.report())
+    return 0 if result.ok else 2

@@ -1,0 +1,414 @@
+"""The argparse parser of `gaffer-diffusion`: every subcommand, flag and help text, and the small
+argument types the flags use (`--mask`, `--envmap`, `--input-lighting`). No torch: building the parser
+and checking what it parsed come before any model loads (issue 17)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, get_args
+
+from gaffer_diffusion._choices import (
+    BACKDROP_FOV_DEG,
+    PRESETS,
+    SCHEDULERS,
+    Background,
+    DetailMode,
+    LatentMode,
+    OutputSize,
+    PrepareCompat,
+)
+from gaffer_diffusion.app.config import add_app_arguments
+
+_DESCRIPTION = "Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`."
+"""The first paragraph of `gaffer_diffusion.cli`'s docstring, shown atop `--help`."""
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="gaffer-diffusion", description=_DESCRIPTION)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("relight", help="relight one object image under an environment map")
+    r.add_argument(
+        "image", type=Path, help="object image (RGBA, or RGB with --mask), or a folder of them"
+    )
+    r.add_argument(
+        "--mask",
+        type=_mask_arg,
+        help="object mask (white = object) for images without alpha; a folder of masks with the "
+        "images' file names when IMAGE is a folder; 'auto': a classical GrabCut estimate (offline, "
+        "no weights), written beside the output as OUT.mask.png",
+    )
+    r.add_argument(
+        "--sam-checkpoint",
+        type=Path,
+        help="a local Segment Anything checkpoint (needs `pip install segment-anything`) for the mask",
+    )
+    r.add_argument(
+        "--output-size",
+        choices=get_args(OutputSize),
+        default="input",
+        help="'input' (default): the photo at its own size, the relit object pasted back at its place; "
+        "'model': the model's square crop",
+    )
+    r.add_argument(
+        "--detail",
+        choices=get_args(DetailMode),
+        default="transfer",
+        help="how the model's result reaches full size: 'transfer' (default) applies its change of "
+        "shading to the full-resolution photo; 'resize' upsamples it bicubically",
+    )
+    r.add_argument(
+        "--background",
+        choices=get_args(Background),
+        default="input",
+        help="around the object: the photo's own pixels ('input', default) or the target environment "
+        "as the camera sees it ('envmap', needs --envmap)",
+    )
+    r.add_argument(
+        "--fov",
+        type=float,
+        default=BACKDROP_FOV_DEG,
+        help="horizontal field of view of the --background envmap camera, degrees",
+    )
+    light = r.add_argument_group("lighting: --envmap with a pose, or pre-encoded --ldr/--hdr maps")
+    light.add_argument(
+        "--envmap",
+        type=_envmap_path,
+        help="equirectangular HDR map (.exr/.hdr), Blender z-up, or the name of a bundled CC0 HDRI "
+        "(city, courtyard, forest, interior, night, studio, sunrise, sunset)",
+    )
+    light.add_argument(
+        "--envmaps",
+        type=Path,
+        help="a folder of .exr/.hdr maps: relight under each of them (OUT is then a folder)",
+    )
+    light.add_argument("--w2c", type=Path, help="3x4 or 4x4 Blender world-to-camera .npy")
+    light.add_argument("--azimuth", type=float, help="orbit camera azimuth, degrees")
+    light.add_argument("--elevation", type=float, help="orbit camera elevation, degrees")
+    light.add_argument("--ldr", type=Path, help="pre-encoded camera-frame LDR map (PNG)")
+    light.add_argument("--hdr", type=Path, help="pre-encoded camera-frame HDR map (PNG)")
+    light.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding; 'neural-gaffer' matches the released checkpoint (the default with "
+        "--checkpoint); without one, gaffer-tiny's own ('default')",
+    )
+    light.add_argument(
+        "--sanitize",
+        choices=("zero", "clamp", "raise"),
+        default="zero",
+        help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail",
+    )
+    r.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="our model folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 128 px)",
+    )
+    r.add_argument(
+        "--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint only)"
+    )
+    r.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="output PNG (turntable: frame prefix + GIF/MP4; folder of images or --envmaps: a folder)",
+    )
+    r.add_argument(
+        "--turntable", type=int, default=0, help="N frames of the light spinning about up"
+    )
+    r.add_argument(
+        "--video",
+        choices=("auto", "gif", "mp4"),
+        default="auto",
+        help="turntable animation: mp4 needs ffmpeg on PATH or PyAV; auto falls back to gif",
+    )
+    r.add_argument("--fps", type=float, default=12.0, help="turntable frames per second")
+    _add_sampling_args(r)
+
+    e = sub.add_parser(
+        "evaluate",
+        help="relight a rendered dataset with a model and score it (--dataset), or score "
+        "predicted images against ground truth matched by name (--pred/--gt)",
+    )
+    ds = e.add_argument_group("a model on a gaffer-data rendered dataset")
+    ds.add_argument(
+        "--dataset", type=Path, help="gaffer-data render folder (gaffer-data render --out)"
+    )
+    ds.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="our model folder or checkpoint-80000/ (default: the shipped gaffer-tiny)",
+    )
+    ds.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
+    ds.add_argument(
+        "--envmaps", type=Path, help="where the dataset's env maps are now, if they moved"
+    )
+    ds.add_argument(
+        "--input-lighting",
+        type=_input_lighting,
+        default=0,
+        help="lighting index of each view's input render, or 'area' (default 0)",
+    )
+    ds.add_argument("--limit", type=int, help="evaluate only the first N pairs")
+    ds.add_argument("--save-predictions", type=Path, help="write every prediction PNG here")
+    ds.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding (default: 'neural-gaffer' for a --checkpoint, gaffer-tiny's own "
+        "'default' without one)",
+    )
+    ds.add_argument(
+        "--object-fraction",
+        type=float,
+        default=None,
+        help="crop each view around its object, which then spans this fraction of the side "
+        "(default: the whole render for a --checkpoint; gaffer-tiny: 0.75, as it was trained)",
+    )
+    _add_sampling_args(ds)
+    fo = e.add_argument_group("two folders of images")
+    fo.add_argument("--pred", type=Path, help="predicted images")
+    fo.add_argument("--gt", type=Path, help="ground-truth images with the same file names")
+    fo.add_argument(
+        "--mask-dir", type=Path, help="masks with the same file names (channel alignment)"
+    )
+    e.add_argument(
+        "--lpips-backbone", type=Path, help="torchvision AlexNet weights for standard LPIPS"
+    )
+    e.add_argument(
+        "--no-perceptual", action="store_true", help="skip the perceptual metric (faster)"
+    )
+    e.add_argument("--json", type=Path, help="write the full report as JSON")
+    e.add_argument("--markdown", type=Path, help="write the table of means as markdown")
+
+    d = sub.add_parser(
+        "demo",
+        help="relight the shipped example object under the bundled HDRIs and a turntable; write "
+        "PNGs, a GIF, metrics.json and report.html",
+    )
+    d.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    d.add_argument(
+        "--checkpoint", type=Path, help="our model folder (default: gaffer-tiny, shipped)"
+    )
+    d.add_argument(
+        "--example", type=Path, help="a gaffer-data render folder (default: the shipped example)"
+    )
+    d.add_argument(
+        "--steps", type=int, help="denoising steps (default: the model's suggestion, else 50)"
+    )
+    d.add_argument(
+        "--guidance", type=float, help="CFG scale (default: the model's suggestion, else 3)"
+    )
+    d.add_argument(
+        "--average-samples",
+        type=int,
+        default=None,
+        help="mean of K samples per image (default: the model's suggestion, else 1)",
+    )
+    d.add_argument(
+        "--mirror-average",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="average with the input mirrored left-right under the mirrored lighting (2x the cost; "
+        "default: off, gaffer-tiny: its model card's setting)",
+    )
+    d.add_argument("--frames", type=int, default=24, help="turntable frames (0: none)")
+    d.add_argument(
+        "--turntable-hdri",
+        default=None,
+        help="bundled HDRI the turntable spins (default: the one whose light changes most with the spin)",
+    )
+    d.add_argument("--fps", type=float, default=12.0, help="turntable GIF frames per second")
+    d.add_argument("--seed", type=int, default=0, help="sampling seed (0)")
+    d.add_argument("--batch-size", type=int, default=8, help="images per sampling call")
+    d.add_argument(
+        "--device",
+        default=None,
+        help="torch device (default: cuda when available, else cpu)",
+    )
+    d.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch CPU threads (default 1: the small model gains little from more, and on a busy "
+        "2-core machine 2 OpenMP threads ran 20x slower than 1)",
+    )
+    d.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="keep the model's whole output; by default the input's background (outside its "
+        "alpha/mask) is kept, as the view does not move",
+    )
+    d.add_argument(
+        "--compat",
+        choices=("neural-gaffer", "default"),
+        default=None,
+        help="lighting encoding (default: the model's own; gaffer-tiny: 'default')",
+    )
+    d.add_argument(
+        "--object-fraction",
+        type=float,
+        default=None,
+        help="crop the example around its object, which then spans this fraction of the side "
+        "(default: the model's framing; gaffer-tiny: 0.75)",
+    )
+    d.add_argument(
+        "--no-extra-hdris",
+        action="store_true",
+        help="skip the bundled HDRIs that have no ground-truth render",
+    )
+
+    _add_authors_commands(sub)
+
+    i = sub.add_parser(
+        "init-random", help="save a random-weight model in our format (demos, tests)"
+    )
+    i.add_argument(
+        "--preset", choices=PRESETS, default="tiny", help="model shapes to build (default: tiny)"
+    )
+    i.add_argument("--seed", type=int, default=0, help="seed of the random weights (0)")
+    i.add_argument("--out", type=Path, required=True, help="model folder to write")
+
+    x = sub.add_parser(
+        "export",
+        help="write a training checkpoint (its EMA weights) as a model folder for evaluate/relight",
+    )
+    x.add_argument("checkpoint", type=Path, help="a checkpoint-NNNNNNNN/ folder of a training run")
+    x.add_argument("--out", type=Path, required=True, help="destination model folder")
+    x.add_argument("--raw", action="store_true", help="the trained weights instead of the EMA")
+
+    add_app_arguments(
+        sub.add_parser(
+            "app", help="relight a photo in the browser (extra [app], Gradio; 127.0.0.1)"
+        )
+    )
+
+    t = sub.add_parser("train", help="train the UNet on gaffer-data renders (extra [train])")
+    t.add_argument("--config", type=Path, required=True, help="training config JSON (see configs/)")
+    t.add_argument(
+        "--resume", action="store_true", help="continue from the newest checkpoint in output_dir"
+    )
+    return p
+
+
+def _add_sampling_args(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    p.add_argument(
+        "--steps", type=int, help="denoising steps (default: 50, the paper's; gaffer-tiny: 1)"
+    )
+    p.add_argument(
+        "--guidance", type=float, help="CFG scale (default: 3, the paper's; gaffer-tiny: 1)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="sampling seed: item i uses seed + i (0)")
+    p.add_argument(
+        "--scheduler",
+        choices=SCHEDULERS,
+        default="ddim",
+        help="sampler (default: ddim, the paper's)",
+    )
+    p.add_argument(
+        "--average-samples",
+        type=int,
+        default=None,
+        help="mean of K samples per output (a posterior-mean estimate: best PSNR, K times the cost; "
+        "default 1, gaffer-tiny: its model card's setting)",
+    )
+    p.add_argument(
+        "--mirror-average",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="average with the input mirrored left-right under the mirrored lighting (2x the cost; "
+        "default: off, gaffer-tiny: its model card's setting)",
+    )
+    p.add_argument("--batch-size", type=int, default=4, help="images per sampling call")
+    p.add_argument(
+        "--device",
+        default=None,
+        help="torch device (default: cuda when available, else cpu)",
+    )
+    p.add_argument(
+        "--dtype",
+        choices=("float32", "float16", "bfloat16"),
+        default="float32",
+        help="weights' precision (default: float32)",
+    )
+    p.add_argument(
+        "--autocast",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="keep float32 weights and run the UNet under torch.autocast in --dtype (default: on "
+        "for --dtype float16 on CUDA with --compat neural-gaffer, as the authors run it)",
+    )
+    p.add_argument(
+        "--latent-mode",
+        choices=get_args(LatentMode),
+        default=None,
+        help="conditioning latents: a posterior 'sample' seeded per item (the authors'; default "
+        "with --compat neural-gaffer) or the posterior 'mode' (deterministic; default otherwise)",
+    )
+    p.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="keep the model's whole output; by default the input's background (outside its "
+        "alpha/mask) is kept, as the view does not move",
+    )
+
+
+def _input_lighting(text: str) -> int | str:
+    if text == "area":
+        return text
+    try:
+        return int(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is neither a lighting index nor 'area'"
+        ) from exc
+
+
+def _mask_arg(text: str) -> Path | str:
+    """`--mask`: a path, or 'auto' (GrabCut)."""
+    return "auto" if text == "auto" else Path(text)
+
+
+def _envmap_path(value: str) -> Path:
+    """`--envmap`: a file, or the name of an HDRI bundled with gaffer-envmap (issue 17)."""
+    path = Path(value)
+    if path.exists() or path.suffix:
+        return path
+    from gaffer_envmap.bundled import bundled_hdris
+
+    return bundled_hdris().get(value, path)
+
+
+def _add_authors_commands(sub: Any) -> None:
+    """`prepare` and `check` (issue 15): what the model sees, and whether the authors' files are complete."""
+    pr = sub.add_parser(
+        "prepare", help="write the model-ready square input (on white) and its mask, as PNGs"
+    )
+    pr.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
+    pr.add_argument(
+        "--mask",
+        type=_mask_arg,
+        help="object mask (white = object) for an RGB image, or 'auto' (GrabCut, written as "
+        "OUT.mask.png)",
+    )
+    pr.add_argument("--out", type=Path, required=True, help="output PNG (the mask: OUT_mask.png)")
+    pr.add_argument(
+        "--compat",
+        choices=get_args(PrepareCompat),
+        default="default",
+        help="'neural-gaffer': the authors' real-image steps (thumbnail 512, alpha > 0 box, "
+        "int(side / 0.75), LANCZOS on RGBA, white, truncation); 'default': ours",
+    )
+    pr.add_argument("--size", type=int, default=256, help="output side (the model resolution)")
+    ck = sub.add_parser(
+        "check",
+        help="validate the authors' checkpoint-80000/ and a Zero-1-to-3 XL base before a long run",
+    )
+    ck.add_argument(
+        "--checkpoint", type=Path, required=True, help="checkpoint-80000/ or its parent"
+    )
+    ck.add_argument(
+        "--base-model", type=Path, required=True, help="Zero-1-to-3 XL diffusers folder"
+    )
