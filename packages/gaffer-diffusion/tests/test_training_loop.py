@@ -201,6 +201,32 @@ def test_bf16_with_extreme_hdr_maps_stays_finite(tmp_path: Path) -> None:
     assert result.skipped_steps == 0 and all(torch.isfinite(torch.tensor(result.losses)))
 
 
+def test_bf16_on_a_cpu_without_native_bf16_trains_in_fp32(
+    tmp_path: Path,
+    data_root: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # emulated bf16 is ~30x slower than fp32 on AVX2-only CPUs (CI's smoke training did 2 steps in 3
+    # minutes); the loop must fall back to fp32 and say so
+    monkeypatch.setattr(loop_mod, "cpu_has_bf16", lambda: False)
+    monkeypatch.setattr(loop_mod, "_gpu_available", lambda: False)
+    seen: list[str] = []
+    real = loop_mod._make_accelerator
+
+    def spy(config: Any) -> Any:
+        acc = real(config)
+        seen.append(str(acc.mixed_precision))
+        return acc
+
+    monkeypatch.setattr(loop_mod, "_make_accelerator", spy)
+    cfg = _config(tmp_path / "o", data_root, train={"max_steps": 1, "mixed_precision": "bf16"})
+    with caplog.at_level("WARNING", logger=loop_mod.logger.name):
+        train(cfg)
+    assert seen == ["no"]
+    assert "training in fp32 instead" in caplog.text
+
+
 def test_validation_reports_psnr_and_identity_baseline(tmp_path: Path, data_root: Path) -> None:
     cfg = _config(
         tmp_path / "v",

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from jaxtyping import Float
@@ -27,8 +28,9 @@ from gaffer_diffusion._choices import LatentMode as LatentMode  # the CLI's choi
 from gaffer_diffusion._validate import check_image_batch, check_unit_range
 from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.errors import MissingDependencyError, ShapeError
-from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_envmap.compat_mode import Compat
+from gaffer_envmap.environment_map import EnvironmentMap
 
 CompatMode = Compat
 """gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""
@@ -258,7 +260,7 @@ def encode_conditions(
     # [3B, 3, H, W]  image, HDR, LDR in one batch, mapped [0, 1] -> [-1, 1] for the VAE
     stacked = torch.cat([conditions.image, conditions.lighting.hdr, conditions.lighting.ldr], dim=0)
     stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
-    posterior = model.vae.encode(stacked).latent_dist
+    posterior = vae_posterior(model.vae, stacked)
     match latent_mode:
         case "mode":
             latents = posterior.mode()
@@ -311,7 +313,7 @@ def hints_for(conditions: RelightingConditions, size: int) -> Float[Tensor, "B 1
 
 
 def lighting_from_envmap(
-    env: object,
+    env: EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor,
     w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"] | Sequence[Any],
     *,
     size: int = 256,
@@ -325,7 +327,7 @@ def lighting_from_envmap(
     with (official implementation §4).
 
     Args:
-        env: a `gaffer_envmap.EnvironmentMap` or a `[He, We, 3]` linear radiance tensor.
+        env: a `gaffer_envmap.EnvironmentMap` (or one per item), or `[He, We, 3]` linear radiance.
         w2c_blender: `[B, 3, 4]` or `[B, 3, 3]` world-to-camera matrices in Blender's camera convention,
             or a sequence of `gaffer_envmap.W2CBlender` poses.
         size: side length of the square maps (the model resolution).

@@ -29,7 +29,6 @@ from typing import Any
 
 import torch
 from diffusers.models.autoencoders.autoencoder_kl import AutoencoderKL
-from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 from transformers import CLIPVisionModelWithProjection
@@ -38,7 +37,7 @@ from gaffer_diffusion._choices import MANIFEST_NAME as MANIFEST_NAME  # re-expor
 from gaffer_diffusion._version import __version__
 from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import CheckpointMismatchError, CheckpointNotFoundError
-from gaffer_diffusion.models.build import config_from_modules
+from gaffer_diffusion.models.build import config_from_modules, unet_from_config
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.models.pixel import PixelAutoencoder, is_pixel_config
 from gaffer_diffusion.models.surgery import expand_conv_in
@@ -365,7 +364,7 @@ def load_authors_release(
     unet_cfg = _base_unet_config(base)
     # Neural Gaffer §3.2 / official impl. §1: 16 input channels; their saved config still says 8
     unet_cfg["in_channels"] = 16
-    unet = UNet2DConditionModel.from_config(unet_cfg)
+    unet = unet_from_config(unet_cfg)
     report = load_checked(unet, read_state_dict(weights), source=str(weights), strict=strict)
     report = dataclasses.replace(
         report, notes=(*report.notes, "UNet config from base_model/unet with in_channels=16")
@@ -403,7 +402,7 @@ def load_zero123_xl(base_model: PathLike, *, strict: bool = True) -> LoadResult:
             [base / "unet"],
             HOW_TO_GET_BASE,
         )
-    unet = UNet2DConditionModel.from_config(unet_cfg)
+    unet = unet_from_config(unet_cfg)
     report = load_checked(unet, read_state_dict(weights), source=str(weights), strict=strict)
     old_in = unet.conv_in.in_channels
     expand_conv_in(unet, 16)
@@ -484,7 +483,7 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
         raise CheckpointNotFoundError(
             "the UNet weights `diffusion_pytorch_model.safetensors`", [root / "unet"], how
         )
-    unet = UNet2DConditionModel.from_config(unet_cfg)
+    unet = unet_from_config(unet_cfg)
     report = load_checked(unet, read_state_dict(weights), source=str(weights), strict=strict)
     vae = _load_vae(root / "vae", how)
     encoder = _load_image_encoder(root / "image_encoder", how)

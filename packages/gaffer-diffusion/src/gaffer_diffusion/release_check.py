@@ -277,7 +277,7 @@ def _check_base(base: Path, exp: ReleaseExpectations, out: list[Finding]) -> dic
 def _check_unet_keys(
     weights: Path, unet_cfg: dict[str, Any], exp: ReleaseExpectations, out: list[Finding]
 ) -> None:
-    from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
+    from gaffer_diffusion.models.build import unet_from_config
 
     try:
         shapes = _tensor_shapes(weights)
@@ -294,7 +294,7 @@ def _check_unet_keys(
     cfg = {k: v for k, v in unet_cfg.items() if not k.startswith("_")}
     cfg["in_channels"] = exp.in_channels  # their saved config says 8 (official impl. §1)
     with torch.device("meta"):
-        unet = UNet2DConditionModel.from_config(cfg)
+        unet = unet_from_config(cfg)
     expected = {k: tuple(v.shape) for k, v in unet.state_dict().items()}
     if shapes and not set(shapes) & set(expected):
         for prefix in _PREFIXES:

@@ -213,7 +213,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
 
     def _mask_text(prepared: PhotoInput, mask: str | None, auto_digest: str) -> str:
         # the automatic mask: computed here (no mask), or the one put in the mask field, unchanged
-        shown_auto = bool(mask and auto_digest) and _digest(mask) == auto_digest
+        shown_auto = bool(mask) and bool(auto_digest) and _digest(mask) == auto_digest
         return f" {AUTO_MASK_NOTE}" if prepared.auto_mask or shown_auto else ""
 
     @_shown_in_page

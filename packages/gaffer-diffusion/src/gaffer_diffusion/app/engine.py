@@ -1,6 +1,6 @@
 """What the app does, without Gradio: the library's public calls behind the page's controls.
 
-Each call here mirrors `gaffer-diffusion relight` (cli.py): `photo.read_photo` reads the photo as it is
+Each call here mirrors `gaffer-diffusion relight` (cli/relight.py): `photo.read_photo` reads the photo as it is
 displayed, its mask is the uploaded one, its alpha, or `automask.grabcut_mask` (the `--mask auto`
 classical fallback), `photo.prepare_photo` crops the object and puts it on white at the model size,
 `lighting_from_envmap` rotates the map into the camera frame and splits it into E_L / E_H (Neural Gaffer
@@ -518,7 +518,7 @@ def _opencv_mp4(frames: Sequence[np.ndarray], path: Path, fps: float) -> bool:
     import cv2
 
     h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), float(fps), (w, h))
     if not writer.isOpened():
         return False
     try:

@@ -25,6 +25,19 @@ def build_unet(config: UNetConfig) -> UNet2DConditionModel:
     return UNet2DConditionModel(**config.to_diffusers())
 
 
+def unet_from_config(config: dict[str, Any]) -> UNet2DConditionModel:
+    """`UNet2DConditionModel.from_config(config)`, typed: a random-initialised UNet of a diffusers
+    `unet/config.json` (weights are loaded separately).
+
+    diffusers annotates `from_config` as `Self | tuple[Self, dict]` (the tuple only with
+    `return_unused_kwargs=True`, never passed here); this narrows it once for every caller.
+    """
+    unet = UNet2DConditionModel.from_config(config)
+    if not isinstance(unet, UNet2DConditionModel):
+        raise TypeError(f"UNet2DConditionModel.from_config returned a {type(unet).__name__}")
+    return unet
+
+
 def build_vae(config: VAEConfig) -> AutoencoderKL | PixelAutoencoder:
     """A random-initialised `AutoencoderKL` with the given shapes, or the `PixelAutoencoder` of
     `kind="pixel"` (no parameters)."""

@@ -6,6 +6,12 @@ from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 from gaffer_diffusion.errors import ConfigError
 
 
+def _pair(size: tuple[int, ...]) -> tuple[int, int]:
+    """A `Conv2d`'s `(h, w)` size attribute (torch types it `tuple[int, ...]`) as the pair it is."""
+    h, w = size
+    return h, w
+
+
 @torch.no_grad()
 def expand_conv_in(unet: UNet2DConditionModel, in_channels: int = 16) -> UNet2DConditionModel:
     """Widen the UNet's first convolution in place, as Neural Gaffer does (official implementation §1).
@@ -34,9 +40,9 @@ def expand_conv_in(unet: UNet2DConditionModel, in_channels: int = 16) -> UNet2DC
     new = torch.nn.Conv2d(
         in_channels,
         old.out_channels,
-        kernel_size=old.kernel_size,
-        stride=old.stride,
-        padding=old.padding,
+        kernel_size=_pair(old.kernel_size),
+        stride=_pair(old.stride),
+        padding=old.padding if isinstance(old.padding, str) else _pair(old.padding),
         device=old.weight.device,
         dtype=old.weight.dtype,
     )

@@ -16,9 +16,11 @@ import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import torch
 from diffusers.models.attention_processor import AttnProcessor, AttnProcessor2_0
+from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from diffusers.utils.torch_utils import randn_tensor
 from jaxtyping import Float
 from torch import Tensor
@@ -31,9 +33,9 @@ from gaffer_diffusion.conditioning import (
     encode_conditions,
 )
 from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
-from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode
 from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
-from gaffer_diffusion.schedulers import make_scheduler
+from gaffer_diffusion.schedulers import Sampler, make_scheduler
 
 logger = logging.getLogger(__name__)
 
@@ -431,6 +433,29 @@ def _under_autocast(
     return call
 
 
+def _step(
+    scheduler: Sampler,
+    eps: Tensor,
+    t: Tensor,
+    z: Tensor,
+    *,
+    eta: float,
+    generator: torch.Generator | list[torch.Generator] | None,
+) -> Tensor:
+    """One reverse step z_t -> z_{t-1} (`scheduler.step(...).prev_sample`); `eta` and `generator` go to
+    DDIM only (the multistep solvers take neither)."""
+    # diffusers annotates `timestep` as int (it takes the schedule's 0-d tensors) and DDIM's `generator`
+    # as one Generator (randn_tensor takes a list, one per item): the casts only restate what runs
+    timestep = cast(int, t)
+    if isinstance(scheduler, DDIMScheduler):
+        gen = cast(torch.Generator | None, generator)
+        out = scheduler.step(eps, timestep, z, eta=eta, generator=gen)
+    else:
+        out = scheduler.step(eps, timestep, z)
+    # a SchedulerOutput (return_dict=True, the default); the bare `(prev_sample,)` tuple never comes here
+    return out[0] if isinstance(out, tuple) else out.prev_sample
+
+
 def _denoise(
     model: NeuralGafferModel,
     unet: Callable[..., object],
@@ -454,9 +479,6 @@ def _denoise(
         # unconditional branch: CLIP embedding AND conditioning latents zeroed (official impl. §2)
         cond = torch.cat([cond, torch.zeros_like(cond)])  # [2N, 12, h, w]
         context = torch.cat([context, torch.zeros_like(context)])  # [2N, 1, D]
-    step_kwargs: dict[str, object] = {}
-    if sampling.scheduler == "ddim":
-        step_kwargs = {"eta": sampling.eta, "generator": generator}
     timesteps = scheduler.timesteps
     for i, t in enumerate(timesteps):
         z_in = torch.cat([z, z]) if cfg else z
@@ -466,10 +488,10 @@ def _denoise(
         if cfg:
             eps_c, eps_u = eps.chunk(2)
             eps = eps_u + sampling.guidance_scale * (eps_c - eps_u)
-        z = scheduler.step(eps, t, z, **step_kwargs).prev_sample
+        z = _step(scheduler, eps, t, z, eta=sampling.eta, generator=generator)
         if callback is not None:
             callback(i, len(timesteps))
-    decoded = model.vae.decode(model.decodable_latents(z, enc.image_latents)).sample
+    decoded = vae_decode(model.vae, model.decodable_latents(z, enc.image_latents))
     images = (decoded.float() / 2.0 + 0.5).clamp(0.0, 1.0)
     # clamp keeps NaN, so the caller's finiteness check still sees them
     images = torch.where(torch.isfinite(decoded.float()), images, decoded.float())

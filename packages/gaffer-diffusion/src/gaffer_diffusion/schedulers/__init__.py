@@ -10,12 +10,14 @@ from typing import assert_never
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from diffusers.schedulers.scheduling_dpmsolver_multistep import DPMSolverMultistepScheduler
 from diffusers.schedulers.scheduling_unipc_multistep import UniPCMultistepScheduler
-from diffusers.schedulers.scheduling_utils import SchedulerMixin
 
 from gaffer_diffusion._choices import SCHEDULERS as SCHEDULERS  # the CLI's choices, torch-free
 from gaffer_diffusion._choices import SchedulerName as SchedulerName
 from gaffer_diffusion.configs import SchedulerConfig
 from gaffer_diffusion.errors import ConfigError
+
+Sampler = DDIMScheduler | DPMSolverMultistepScheduler | UniPCMultistepScheduler
+"""What `make_scheduler` returns: the diffusers scheduler of one of `SCHEDULERS`."""
 
 
 def make_scheduler(
@@ -23,7 +25,7 @@ def make_scheduler(
     config: SchedulerConfig | None = None,
     *,
     timestep_spacing: str | None = None,
-) -> SchedulerMixin:
+) -> Sampler:
     """A fresh diffusers scheduler of the given kind for the model's noise schedule.
 
     Args:
@@ -71,4 +73,4 @@ def make_scheduler(
             assert_never(name)
 
 
-__all__ = ["SCHEDULERS", "SchedulerName", "make_scheduler"]
+__all__ = ["SCHEDULERS", "Sampler", "SchedulerName", "make_scheduler"]

@@ -45,7 +45,7 @@ from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
 from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_model, build_scheduler
-from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training.config import ModelSource, TrainConfig
 from gaffer_diffusion.training.dataset import (
@@ -217,7 +217,7 @@ class _Trainer:
         with torch.no_grad():
             # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
             stacked = torch.cat([inputs, hdr, ldr, targets]) * 2.0 - 1.0
-            posterior = m.vae.encode(stacked.to(self.weight_dtype)).latent_dist
+            posterior = vae_posterior(m.vae, stacked.to(self.weight_dtype))
             sampled = posterior.sample(generator=gen).float()
             cond_all = posterior.mode().float() if cfg.train.cond_latent_mode == "mode" else sampled
             image_lat = cond_all[:b].repeat_interleave(t, dim=0)  # [BT, 4, h, w] raw latents
@@ -351,8 +351,20 @@ def _make_accelerator(config: TrainConfig) -> Any:
     if int(os.environ.get("WORLD_SIZE", "1")) == 1:
         # a fresh single-process state per call, so one process can run several trainings (tests)
         AcceleratorState._reset_state(reset_partial_state=True)
+    mixed_precision = config.train.mixed_precision
+    if mixed_precision == "bf16" and not _gpu_available() and not cpu_has_bf16():
+        # measured (gaffer-tiny stage 3, 2-core AMD EPYC with AVX2 only): 75 s per step in emulated
+        # bf16 vs 2.6 s in fp32 (with AVX512-BF16, bf16 was faster than fp32). On a CPU bf16 is a
+        # speed choice only, so fp32 keeps the run's results and makes it feasible (CI's smoke
+        # training did 2 steps in 3 minutes on such a machine before this fallback).
+        logger.warning(
+            "`train.mixed_precision` bf16 on a CPU without native bf16 (no AVX512-BF16/AMX): torch "
+            "would emulate it, about 30x slower; training in fp32 instead "
+            '(set `train.mixed_precision` to "no" to silence this).'
+        )
+        mixed_precision = "no"
     acc = Accelerator(
-        mixed_precision=config.train.mixed_precision,
+        mixed_precision=mixed_precision,
         gradient_accumulation_steps=config.train.grad_accum,
         project_dir=str(config.output_dir),
     )
@@ -360,14 +372,13 @@ def _make_accelerator(config: TrainConfig) -> Any:
         logger.warning(
             "`train.mixed_precision` fp16 on a CPU: autocast/grad scaling are GPU features"
         )
-    if config.train.mixed_precision == "bf16" and acc.device.type == "cpu" and not cpu_has_bf16():
-        # measured (gaffer-tiny stage 3, 2-core AMD EPYC with AVX2 only): 75 s per step in bf16 vs
-        # 2.6 s in fp32; with AVX512-BF16 bf16 was 10x faster than fp32
-        logger.warning(
-            "`train.mixed_precision` bf16 on a CPU without native bf16 (no AVX512-BF16/AMX): torch "
-            'emulates it, about 30x slower than fp32 here; set `train.mixed_precision` to "no".'
-        )
     return acc
+
+
+def _gpu_available() -> bool:
+    """Whether accelerate will place the run on a GPU (CUDA or Apple MPS)."""
+    mps = getattr(torch.backends, "mps", None)
+    return torch.cuda.is_available() or bool(mps is not None and mps.is_available())
 
 
 def cpu_has_bf16() -> bool:

@@ -35,7 +35,7 @@ from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.loading import save_pretrained
 from gaffer_diffusion.metrics import psnr
 from gaffer_diffusion.models.build import build_model
-from gaffer_diffusion.models.model import NeuralGafferModel
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode, vae_posterior
 from gaffer_diffusion.training.config import ValidationConfig, load_config
 from gaffer_diffusion.training.dataset import RelightTrainDataset, split_object_ids
 from gaffer_diffusion.training.loop import load_checkpoint_model, train
@@ -102,8 +102,8 @@ def fit_autoencoder(
     while time.perf_counter() - t0 < seconds:
         idx = torch.randint(0, images.shape[0], (16,), generator=g)
         x = images[idx] * 2 - 1
-        post = vae.encode(x).latent_dist
-        rec = vae.decode(post.sample(generator=g)).sample
+        post = vae_posterior(vae, x)
+        rec = vae_decode(vae, post.sample(generator=g))
         loss = torch.nn.functional.mse_loss(rec, x) + 1e-6 * post.kl().mean()
         opt.zero_grad()
         loss.backward()
@@ -117,8 +117,8 @@ def fit_autoencoder(
 def vae_ceiling(model: NeuralGafferModel, images: torch.Tensor) -> float | None:
     """Mean PSNR of `decode(mode(encode(x)))` against x: the best the VAE can draw (None: exact, as in
     pixel space, where the PSNR is infinite)."""
-    z = model.vae.encode(images * 2 - 1).latent_dist.mode()
-    rec = (model.vae.decode(z).sample / 2 + 0.5).clamp(0, 1)
+    z = vae_posterior(model.vae, images * 2 - 1).mode()
+    rec = (vae_decode(model.vae, z) / 2 + 0.5).clamp(0, 1)
     value = float(psnr(torch.round(rec * 255) / 255, images).mean())
     return value if np.isfinite(value) else None
 
@@ -185,6 +185,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         include=val_ids,
     )
     valset = build_validation_set(val_ds, vcfg.num_samples)
+    if result.checkpoint is None:
+        raise RuntimeError(f"smoke training wrote no checkpoint under {ckpt_dir}")
     model = load_checkpoint_model(result.checkpoint, use_ema=True)
     scores = {}
     # one step from t=999 is the model's estimate of E[target | conditions] (the PSNR-optimal
@@ -251,7 +253,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point; writes `OUT/smoke_report.json` and returns 0."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--minutes", type=float, default=3.0, help="diffusion training wall time")

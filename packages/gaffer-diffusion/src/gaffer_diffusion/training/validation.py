@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
@@ -104,7 +105,7 @@ def build_validation_set(dataset: RelightTrainDataset, num_samples: int) -> Vali
 
 
 def sampling_model(
-    model: NeuralGafferModel, unet: torch.nn.Module, ema: EMAModel | None
+    model: NeuralGafferModel, unet: UNet2DConditionModel, ema: EMAModel | None
 ) -> NeuralGafferModel:
     """A copy of the trained UNet (with the EMA weights when given) beside the shared frozen parts."""
     unet_copy = copy.deepcopy(unet)
