@@ -185,6 +185,11 @@ def smoke_train(session: nox.Session) -> None:
     report = json.loads((out / "smoke_report.json").read_text())
     train, held = report["training"], report["heldout_psnr_db"]
     relit = {k: v["psnr_relit"] for k, v in held.items() if k.startswith("steps_")}
+    if train["loss_first_10pct"] is None:
+        session.error(
+            f"smoke training logged no loss in {train['steps']} steps ({train['seconds']:.0f} s): "
+            "each step took longer than the run's logging interval allows"
+        )
     session.log(
         f"loss {train['loss_first_10pct']:.4f} -> {train['loss_last_10pct']:.4f} in "
         f"{train['steps']} steps; held-out PSNR relit {relit} vs unrelit input "
