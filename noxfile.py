@@ -28,8 +28,8 @@ PACKAGES = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 # What each package needs beside itself for its test suite (extras + the test dependency group).
 # Each package's `all` extra holds everything its own tests need beyond the core dependencies.
 TEST_SPECS = tuple(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}[all]"))
-TYPECHECKED = ("gaffer-envmap", "gaffer-data")
-"""Packages pyright checks in the `typecheck` session (gaffer-diffusion and gaffer-nerf: issue 14)."""
+TYPECHECKED = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion")
+"""Packages pyright checks in the `typecheck` session (gaffer-nerf: issue 14)."""
 TEST_TOOLS = ("pytest==9.2.0", "jaxtyping>=0.2.36", "beartype>=0.19", "scipy>=1.11", "bpy==5.0.1")
 
 
@@ -93,6 +93,8 @@ def typecheck(session: nox.Session) -> None:
         "packages/gaffer-envmap[hdr]",
         "-e",
         "packages/gaffer-data[filter]",
+        "-e",
+        "packages/gaffer-diffusion[all]",
         "OpenEXR>=3.3",
         "pillow>=10",
         "pyright==1.1.408",

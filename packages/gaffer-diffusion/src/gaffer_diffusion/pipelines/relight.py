@@ -482,7 +482,7 @@ def _denoise(
     timesteps = scheduler.timesteps
     for i, t in enumerate(timesteps):
         z_in = torch.cat([z, z]) if cfg else z
-        z_in = scheduler.scale_model_input(z_in, t)
+        z_in = scheduler.scale_model_input(z_in, cast(int, t))  # a 0-d tensor, typed int upstream
         unet_in = torch.cat([z_in, cond], dim=1)  # [2N, 16, h, w]  z_t + 3x4 conditioning latents
         eps = unet(unet_in, t, encoder_hidden_states=context).sample  # type: ignore[attr-defined]
         if cfg:
