@@ -1,7 +1,8 @@
 """kill -9 in the middle of a multi-file output leaves the earlier run's files as they were (issue 17).
 
 The demo builds its whole folder in a hidden `.OUT.partial-*` sibling and renames it into place at the
-end (`gaffer_diffusion._atomic_dir`). A SIGKILL cannot be caught, so the only guarantee is structural:
+end (`gaffer_diffusion._atomic_dir`); `gaffer-envmap procedural` / `augment` and `gaffer-data recipe`
+write their sets into a hidden `.partial-*` folder inside the destination (`gaffer_envmap.atomic`). A SIGKILL cannot be caught, so the only guarantee is structural:
 nothing is written under the final names before the rename. These tests kill a real `gaffer-diffusion
 demo` process once its staging folder holds files, and check that the earlier run's folder is byte
 for byte what it was, with no new file beside it.
@@ -13,12 +14,10 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-
-pytest.importorskip("gaffer_diffusion")
-pytest.importorskip("torch")
 
 TIMEOUT_S = 240.0
 
@@ -35,8 +34,64 @@ def _staged_files(parent: Path, name: str) -> list[Path]:
     return [p for d in parent.glob(f".{name}.partial-*") for p in d.rglob("*") if p.is_file()]
 
 
-@pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs POSIX signals")
+def _kill_once_staged(cmd: list[str], staged: Callable[[], list[Path]], log: Path) -> None:
+    """Run `cmd` in its own process group, SIGKILL the group as soon as `staged()` lists a file."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONHASHSEED": "0"}
+    with log.open("wb") as err_file:
+        proc = subprocess.Popen(
+            cmd, env=env, stdout=subprocess.DEVNULL, stderr=err_file, start_new_session=True
+        )
+    try:
+        deadline = time.monotonic() + TIMEOUT_S
+        while time.monotonic() < deadline and proc.poll() is None and not staged():
+            time.sleep(0.02)
+        if proc.poll() is not None:
+            err = log.read_text(errors="replace")
+            pytest.fail(f"{cmd[2:4]} ended (exit {proc.returncode}) before it was killed: {err}")
+        assert staged(), f"{cmd[2:4]} wrote no staged file in {TIMEOUT_S} s"
+        os.killpg(proc.pid, signal.SIGKILL)  # the command and any worker it started
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+
+
+def _inner_staged(folder: Path) -> list[Path]:
+    return [p for d in folder.glob(".partial-*") for p in d.rglob("*") if p.is_file()]
+
+
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
+def test_envmap_procedural_killed_mid_set_leaves_no_map_under_a_final_name(tmp_path: Path) -> None:
+    pytest.importorskip("gaffer_envmap")
+    out = tmp_path / "maps"
+    out.mkdir()
+    (out / "proc_9999.exr").write_bytes(b"an earlier map")
+    before = _digests(out)
+    cmd = [sys.executable, "-m", "gaffer_envmap.cli", "procedural", "--out-dir", str(out)]
+    cmd += ["--count", "400", "--height", "256"]
+    _kill_once_staged(cmd, lambda: _inner_staged(out), tmp_path / "stderr.txt")
+    after = {k: v for k, v in _digests(out).items() if not k.startswith(".partial-")}
+    assert after == before
+
+
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
+def test_recipe_killed_while_building_objects_leaves_no_partial_set(tmp_path: Path) -> None:
+    pytest.importorskip("gaffer_data")
+    pytest.importorskip("bpy")
+    out = tmp_path / "rec"
+    procedural = out / "objects" / "procedural"
+    cmd = [sys.executable, "-m", "gaffer_data.cli", "recipe", str(out), "--procedural", "300"]
+    _kill_once_staged(cmd, lambda: _inner_staged(procedural), tmp_path / "stderr.txt")
+    final = [p for p in procedural.iterdir() if not p.name.startswith(".partial-")]
+    assert final == []
+
+
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
 def test_demo_killed_mid_run_leaves_the_earlier_folder_untouched(tmp_path: Path) -> None:
+    pytest.importorskip("gaffer_diffusion")
+    pytest.importorskip("torch")
     out = tmp_path / "demo"
     out.mkdir()
     # an earlier run's outputs (and a file another tool put there)
@@ -45,32 +100,9 @@ def test_demo_killed_mid_run_leaves_the_earlier_folder_untouched(tmp_path: Path)
     (out / "overview.png").write_bytes(b"\x89PNG earlier")
     (out / "notes.txt").write_text("mine, not the demo's")
     before = _digests(out)
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONHASHSEED": "0"}
     log = tmp_path / "stderr.txt"
-    with log.open("wb") as err_file:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "gaffer_diffusion.cli", "demo", "--out", str(out)],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=err_file,
-        )
-    try:
-        deadline = time.monotonic() + TIMEOUT_S
-        while time.monotonic() < deadline and proc.poll() is None:
-            if _staged_files(tmp_path, "demo"):
-                break
-            time.sleep(0.05)
-        if proc.poll() is not None:
-            err = log.read_text(errors="replace")
-            pytest.fail(f"the demo ended (exit {proc.returncode}) before it was killed: {err}")
-        assert _staged_files(tmp_path, "demo"), "the demo wrote no staged file in time"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == -signal.SIGKILL
+    cmd = [sys.executable, "-m", "gaffer_diffusion.cli", "demo", "--out", str(out)]
+    _kill_once_staged(cmd, lambda: _staged_files(tmp_path, "demo"), log)
     # the earlier folder: the same files, the same bytes, nothing new under the final names
     assert _digests(out) == before
     # what the kill can leave: only the hidden staging sibling
