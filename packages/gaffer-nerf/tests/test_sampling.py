@@ -192,18 +192,15 @@ def test_mirror_average_needs_the_mirrored_conditions() -> None:
     assert out.shape == (1, 3, 128, 128) and bool(torch.isfinite(out).all())
 
 
-@pytest.mark.xfail(
-    reason="gaffer_nerf.preflight now checks the field argument before the env map, so this test's "
-    "missing field is refused first; the test needs a real field (stop 25, no time left)",
-    strict=False,
-)
 def test_envmap_sanitize_and_bundled_names(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     scene = _scene(tmp_path)
+    field = _fit(tmp_path, scene)  # a real field: preflight checks it before the env map
     out = tmp_path / "r"
+    capsys.readouterr()
     args = [
-        "relight", str(tmp_path / "no-field"), "--data", str(scene.root), "--envmap", "sunset",
+        "relight", str(field), "--data", str(scene.root), "--envmap", "sunset",
         "--out", str(out), "--no-progress", "--device", "cpu",
     ]  # fmt: skip
     assert main([*args, "--sanitize", "strict"]) == 2  # refused before loading anything
