@@ -28,7 +28,7 @@ PACKAGES = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 # What each package needs beside itself for its test suite (extras + the test dependency group).
 # Each package's `all` extra holds everything its own tests need beyond the core dependencies.
 TEST_SPECS = tuple(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}[all]"))
-TYPECHECKED = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion")
+TYPECHECKED = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 """Packages pyright checks in the `typecheck` session (gaffer-nerf: issue 14)."""
 TEST_TOOLS = ("pytest==9.2.0", "jaxtyping>=0.2.36", "beartype>=0.19", "scipy>=1.11", "bpy==5.0.1")
 
@@ -95,6 +95,8 @@ def typecheck(session: nox.Session) -> None:
         "packages/gaffer-data[filter]",
         "-e",
         "packages/gaffer-diffusion[all]",
+        "-e",
+        "packages/gaffer-nerf[all]",
         "OpenEXR>=3.3",
         "pillow>=10",
         "pyright==1.1.408",

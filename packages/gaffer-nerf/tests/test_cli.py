@@ -50,6 +50,7 @@ def test_cli_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
                 "1",
                 "--json",
                 str(out_json),
+                "--flicker",
                 *common,
             ]
         )
@@ -57,7 +58,9 @@ def test_cli_round_trip(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     )
     metrics = json.loads(out_json.read_text())
     assert metrics["perceptual_name"] == "stlpips-alex" and len(metrics["items"]) == 2
+    assert metrics["flicker"]["frames"] == 2 and metrics["flicker"]["flicker"] >= 0
     out = capsys.readouterr().out
+    assert "flicker along the 2 test views" in out
     assert "object mask, raw" in out and "aligned (mask means)" in out
 
 

@@ -7,6 +7,7 @@ field is rebuilt at its final shape before loading (strictly).
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import torch
 from safetensors.torch import load_file, save_file
@@ -83,5 +84,7 @@ def load_field(folder: str | Path, *, device: str | torch.device = "cpu") -> Ten
     return field.to(device)
 
 
-def _tuples(d: dict[str, object]) -> dict[str, object]:
+def _tuples(d: dict[str, Any]) -> dict[str, Any]:
+    """A config dataclass's fields as read from JSON (untyped values: the dataclass checks them),
+    with lists back as the tuples `dataclasses.asdict` wrote them from."""
     return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}

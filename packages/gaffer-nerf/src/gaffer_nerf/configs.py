@@ -400,7 +400,14 @@ class DiffusionSamplingConfig:
         latent_mode: conditioning latents from the VAE posterior "mode" or a "sample".
         batch_size: views relit per pipeline call in Stage 1.
         compat: lighting encoding, "neural-gaffer" for the released checkpoint or "default".
-        seed: base seed; view i uses `seed + i`.
+        seed: base seed.
+        shared_noise: every view of Stage 1 starts from the same initial noise (seed `seed`, and
+            the same posterior noise with `latent_mode="sample"`), so the relit views differ only
+            where their inputs and lightings do. False (default): view i uses seed `seed + i`.
+            Measured (issue 20, gaffer-tiny on the sphere scene, 16-frame orbit, 4 seeds): shared
+            noise cuts the relit views' flicker by 30% (`gaffer_nerf.flicker`) but the Stage-1
+            field fitted to them scores 0.6 dB lower with 4% less flicker, because the field
+            averages independent per-view noise away and bakes in noise shared by every view.
     """
 
     num_inference_steps: int | None = None
@@ -411,8 +418,13 @@ class DiffusionSamplingConfig:
     batch_size: int = 8
     compat: CompatName | None = None
     seed: int = 0
+    shared_noise: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.shared_noise, bool):
+            raise ConfigError(
+                f"`shared_noise` (--[no-]shared-noise) is {self.shared_noise!r}; expected a bool."
+            )
         steps = self.num_inference_steps
         if steps is not None and not (isinstance(steps, int) and 1 <= steps <= 1000):
             raise ConfigError(

@@ -192,7 +192,8 @@ def read_transforms_split(
             )
         rgb, alpha = read_rgba(_frame_path(base, file_path))
         if downscale > 1:
-            rgb, alpha = _box_down(rgb, downscale), _box_down(alpha, downscale)
+            rgb = _box_down(rgb, downscale)
+            alpha = None if alpha is None else _box_down(alpha, downscale)
         images.append(composite_white(rgb, alpha))
         alphas.append(alpha)
         c2ws.append(m @ BLENDER_TO_OPENCV)
@@ -219,9 +220,7 @@ def read_transforms_split(
     )
 
 
-def _box_down(x: np.ndarray | None, f: int) -> np.ndarray | None:
-    if x is None:
-        return None
+def _box_down(x: np.ndarray, f: int) -> np.ndarray:
     h, w = x.shape[0] // f, x.shape[1] // f
     x = x[: h * f, : w * f]
     return x.reshape(h, f, w, f, *x.shape[2:]).mean(axis=(1, 3))

@@ -69,7 +69,10 @@ class FeatureMLP(nn.Module):
             nn.ReLU(inplace=True),
             nn.Linear(hidden, 3),
         )
-        nn.init.constant_(self.layers[-1].bias, 0.0)  # type: ignore[arg-type]
+        last = self.layers[-1]
+        if not isinstance(last, nn.Linear):  # nn.Sequential's indexing is typed as any Module
+            raise TypeError(f"FeatureMLP's last layer is a {type(last).__name__}, not nn.Linear")
+        nn.init.constant_(last.bias, 0.0)
 
     def forward(
         self, features: Float[Tensor, "N F"], dirs_world: Float[Tensor, "N 3"]
@@ -136,6 +139,12 @@ class TensoRFVM(nn.Module):
         >>> f.density(torch.zeros(5, 3)).shape
         torch.Size([5])
     """
+
+    aabb: Tensor  # [2, 3] buffer (registered in __init__): box min, box max
+    density_planes: nn.ParameterList
+    density_lines: nn.ParameterList
+    appearance_planes: nn.ParameterList
+    appearance_lines: nn.ParameterList
 
     def __init__(
         self,

@@ -14,10 +14,12 @@ instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started f
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import cast
+from typing import TypeVar, cast
 
+import numpy as np
 import torch
 import torch.nn.functional as F
+from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from jaxtyping import Float
 from torch import Tensor
 
@@ -27,13 +29,47 @@ from gaffer_diffusion import (
     RelightingConditions,
     RelightPipeline,
     SamplingConfig,
+    SchedulerConfig,
     lighting_from_envmap,
     make_scheduler,
 )
+from gaffer_diffusion.models.model import vae_decode, vae_posterior
+from gaffer_envmap import EnvironmentMap
 from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, ModelSampling, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
 
 ProgressCallback = Callable[[int, int], None]
+
+TargetLighting = EnvironmentMap | np.ndarray | Tensor
+"""A target lighting: a `gaffer_envmap.EnvironmentMap` or `[He, We, 3]` linear radiance (Blender world)."""
+
+_T = TypeVar("_T")
+
+
+def _resolved(value: _T | None, name: str) -> _T:
+    """A field of `DiffusionGuide.sampling`, which `DiffusionSamplingConfig.resolved` filled."""
+    if value is None:
+        raise ConfigError(
+            f"`{name}` is unset in the guide's sampling; it must be resolved against the model's "
+            "suggestion (`DiffusionSamplingConfig.resolved`) first."
+        )
+    return value
+
+
+def _ddim_scheduler(config: SchedulerConfig) -> DDIMScheduler:
+    """`make_scheduler("ddim", config)`, narrowed from the union of every scheduler it can make."""
+    sched = make_scheduler("ddim", config)
+    if not isinstance(sched, DDIMScheduler):
+        raise TypeError(f'make_scheduler("ddim") returned a {type(sched).__name__}')
+    return sched
+
+
+def _ddim_step(sched: DDIMScheduler, eps: Tensor, t: Tensor, z: Tensor) -> Tensor:
+    """One deterministic DDIM step z_t -> z_{t-1} (`sched.step(..., eta=0).prev_sample`)."""
+    # diffusers annotates `timestep` as int; it takes the schedule's 0-d tensors
+    out = sched.step(eps, cast(int, t), z, eta=0.0)
+    # a DDIMSchedulerOutput (return_dict=True, the default); the bare tuple never comes here
+    return out[0] if isinstance(out, tuple) else out.prev_sample
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -129,9 +165,9 @@ class DiffusionGuide:
             images, size=(r, r), mode="bilinear", antialias=True, align_corners=False
         )
 
-    def lighting(self, envmap: object, w2c_blender: Float[Tensor, "V 3 4"]) -> LightingMaps:
+    def lighting(self, envmap: TargetLighting, w2c_blender: Float[Tensor, "V 3 4"]) -> LightingMaps:
         """Camera-frame LDR/HDR maps of `envmap` for every view (gaffer-envmap's `encode_lighting`)."""
-        compat = cast(CompatName, self.sampling.compat)  # resolved: never None here
+        compat: CompatName = _resolved(self.sampling.compat, "compat")
         return lighting_from_envmap(envmap, w2c_blender, size=self.resolution, compat=compat)
 
     def sampling_config(self) -> SamplingConfig:
@@ -142,9 +178,9 @@ class DiffusionGuide:
         """
         s = self.sampling
         return SamplingConfig(
-            num_inference_steps=int(s.num_inference_steps),  # type: ignore[arg-type]
-            guidance_scale=float(s.guidance_scale),  # type: ignore[arg-type]
-            average_samples=int(s.average_samples),  # type: ignore[arg-type]
+            num_inference_steps=int(_resolved(s.num_inference_steps, "num_inference_steps")),
+            guidance_scale=float(_resolved(s.guidance_scale, "guidance_scale")),
+            average_samples=int(_resolved(s.average_samples, "average_samples")),
             mirror_average=bool(s.mirror_average),
             latent_mode=s.latent_mode or "mode",
         )
@@ -156,7 +192,7 @@ class DiffusionGuide:
         """Encode the input views with the target lighting once (batched by `sampling.batch_size`).
 
         With `mirror_average` the mirrored views are encoded too. With `latent_mode="sample"` view
-        i draws its posterior noise from seed `sampling.seed + i` (the mirror from the same seed).
+        i draws its posterior noise from `view_seed(i)` (the mirror from the same seed).
         """
         from gaffer_envmap.augment import mirror_camera_x
 
@@ -174,7 +210,7 @@ class DiffusionGuide:
                 gens = None
                 if mode == "sample":
                     seeds = range(s, min(s + b, x.shape[0]))
-                    gens = [torch.Generator().manual_seed(self.sampling.seed + i) for i in seeds]
+                    gens = [torch.Generator().manual_seed(self.view_seed(i)) for i in seeds]
                 parts.append(self.pipeline.encode(cond, latent_mode=mode, generator=gens))
             return EncodedConditions.cat(parts)
 
@@ -184,6 +220,10 @@ class DiffusionGuide:
             ldr, hdr = mirror_camera_x(lighting.ldr), mirror_camera_x(lighting.hdr)
             mirrored = encode_all(x.flip(-1), ldr, hdr)
         return ViewConditions(lighting=lighting, encoded=enc, mirrored=mirrored)
+
+    def view_seed(self, index: int) -> int:
+        """The noise seed of view `index`: `sampling.seed` for all with `shared_noise`, else + index."""
+        return self.sampling.seed + (0 if self.sampling.shared_noise else index)
 
     def _mirrored(self, mirrored: EncodedConditions | None, where: str) -> EncodedConditions | None:
         if not self.sampling.mirror_average:
@@ -202,8 +242,10 @@ class DiffusionGuide:
     ) -> Float[Tensor, "V 3 R R"]:
         """Stage 1's targets: every view relit from pure noise with the resolved sampling.
 
-        View i uses seed `sampling.seed + i` (its mirror the same), so results do not depend on the
-        batch size. With `mirror_average` the mirrored view's result is flipped back and averaged.
+        View i uses seed `view_seed(i)` (its mirror the same): `sampling.seed + i`, or one seed for
+        every view with `shared_noise` (more consistent targets, see `DiffusionSamplingConfig`);
+        either way the results do not depend on the batch size. With `mirror_average` the mirrored view's
+        result is flipped back and averaged.
         """
         cfg = self.sampling_config()
         mirrored = self._mirrored(conditions.mirrored, "relight_views")
@@ -211,7 +253,7 @@ class DiffusionGuide:
         b, v = self.sampling.batch_size, conditions.num_views
         for s in range(0, v, b):
             idx = list(range(s, min(s + b, v)))
-            seeds = [self.sampling.seed + i for i in idx]
+            seeds = [self.view_seed(i) for i in idx]
             enc = conditions.encoded.select(idx)
             if mirrored is not None:  # one batch of 2B, as RelightPipeline's mirror mean
                 enc = EncodedConditions.cat([enc, mirrored.select(idx)])
@@ -225,17 +267,18 @@ class DiffusionGuide:
                 callback(idx[-1] + 1, v)
         return torch.cat(out)
 
-    def _timesteps(self, t_frac: float) -> tuple[object, Tensor]:
+    def _timesteps(self, t_frac: float) -> tuple[DDIMScheduler, Tensor]:
         """The scheduler and the DDIM timesteps Stage 2 runs from t*.
 
         The steps of the model's `num_inference_steps` schedule at or below t*; when it has none
         there (a few-step model such as gaffer-tiny, whose one step is at t = 999), one DDIM step
         from t* itself (never from above t*, which would discard the render).
         """
-        sched = make_scheduler("ddim", self.model.config.scheduler)
-        sched.set_timesteps(self.sampling.num_inference_steps, device=self.pipeline.device)
+        sched = _ddim_scheduler(self.model.config.scheduler)
+        steps = _resolved(self.sampling.num_inference_steps, "num_inference_steps")
+        sched.set_timesteps(steps, device=self.pipeline.device)
         ts = sched.timesteps
-        limit = t_frac * sched.config.num_train_timesteps
+        limit = t_frac * sched.config["num_train_timesteps"]
         below = ts[ts <= limit]
         if below.numel() > 0:
             return sched, below
@@ -268,7 +311,7 @@ class DiffusionGuide:
         0.18215 for the paper's model; E(x) - E(input) (scaled) for a residual one such as gaffer-tiny,
         whose input latents `encoded` holds (`NeuralGafferModel.diffusion_target`)."""
         x = (images * 2.0 - 1.0).to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-        dist = self.model.vae.encode(x).latent_dist
+        dist = vae_posterior(self.model.vae, x)
         z = dist.mode() if mode == "mode" else dist.sample(generator=generator)
         return self.model.diffusion_target(z, encoded.image_latents.to(z))
 
@@ -277,7 +320,7 @@ class DiffusionGuide:
     ) -> Float[Tensor, "B 3 R R"]:
         """Images in [0, 1] from diffusion latents (as the pipeline decodes)."""
         raw = self.model.decodable_latents(z, encoded.image_latents.to(z))
-        x = self.model.vae.decode(raw).sample
+        x = vae_decode(self.model.vae, raw)
         return (x.float() / 2.0 + 0.5).clamp(0.0, 1.0)
 
     @torch.no_grad()
@@ -327,17 +370,18 @@ class DiffusionGuide:
         if mirror is not None:
             noise = torch.cat([noise, noise])
         noise = noise.to(device=z0.device, dtype=z0.dtype)
-        z = sched.add_noise(z0, noise, ts[:1].repeat(z0.shape[0]))  # type: ignore[attr-defined]
+        z = sched.add_noise(z0, noise, _int_tensor(ts[:1].repeat(z0.shape[0])))
         out = self._ddim(sched, z, ts, enc)
         if mirror is not None:
             out = (out[: b * k] + out[b * k :].flip(-1)) / 2.0
         return out.unflatten(0, (b, k)).mean(dim=1)
 
-    def _ddim(self, sched: object, z: Tensor, ts: Tensor, enc: EncodedConditions) -> Tensor:
-        g = float(self.sampling.guidance_scale)  # type: ignore[arg-type]
+    def _ddim(self, sched: DDIMScheduler, z: Tensor, ts: Tensor, enc: EncodedConditions) -> Tensor:
+        g = float(_resolved(self.sampling.guidance_scale, "guidance_scale"))
         for t in ts:
-            eps = self._eps(sched.scale_model_input(z, t), t, enc, g)  # type: ignore[attr-defined]
-            z = sched.step(eps, t, z, eta=0.0).prev_sample  # type: ignore[attr-defined]
+            # diffusers annotates `timestep` as int; it takes the schedule's 0-d tensors
+            eps = self._eps(sched.scale_model_input(z, cast(int, t)), t, enc, g)
+            z = _ddim_step(sched, eps, t, z)
         return self.decode(z, enc)
 
     @torch.no_grad()
@@ -347,11 +391,11 @@ class DiffusionGuide:
         """The full schedule from pure noise through this class's loop (the reference-twin check)."""
         enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
         sched, _ = self._timesteps(1.0)
-        ts = sched.timesteps  # type: ignore[attr-defined]
+        ts = sched.timesteps
         z = (
             noise.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
             * sched.init_noise_sigma
-        )  # type: ignore[attr-defined]
+        )
         return self._ddim(sched, z, ts, enc)
 
     def sds_loss(
@@ -379,7 +423,9 @@ class DiffusionGuide:
     def sds_guidance(self, config: Stage2Config) -> float:
         """The CFG scale SDS uses: `config.sds_guidance_scale`, else the model's."""
         g = config.sds_guidance_scale
-        return float(self.sampling.guidance_scale if g is None else g)  # type: ignore[arg-type]
+        if g is None:
+            return float(_resolved(self.sampling.guidance_scale, "guidance_scale"))
+        return float(g)
 
     def _sds_one(
         self,
@@ -389,22 +435,28 @@ class DiffusionGuide:
         generator: torch.Generator | None,
     ) -> Tensor:
         enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-        sched = make_scheduler("ddim", self.model.config.scheduler)
-        n_train = int(sched.config.num_train_timesteps)  # type: ignore[attr-defined]
+        sched = _ddim_scheduler(self.model.config.scheduler)
+        n_train = int(sched.config["num_train_timesteps"])
         lo, hi = config.sds_t_range
         t = torch.randint(int(lo * n_train), int(hi * n_train) + 1, (1,), generator=generator)
         t = t.to(self.pipeline.device)
         z0 = self.encode_image(images, enc, mode=config.encode_mode, generator=generator)
         noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32).to(z0)
         with torch.no_grad():
-            z_t = sched.add_noise(z0.detach(), noise, t.repeat(z0.shape[0]))  # type: ignore[attr-defined]
+            z_t = sched.add_noise(z0.detach(), noise, _int_tensor(t.repeat(z0.shape[0])))
             pred = self._eps(z_t, t, enc, self.sds_guidance(config))
-            alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)  # type: ignore[attr-defined]
+            alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)
             eps = _as_epsilon(pred, z_t, alpha_bar, self.model.config.scheduler.prediction_type)
             grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)
             grad = torch.nan_to_num(grad)
         target = (z0 - grad).detach()
         return 0.5 * F.mse_loss(z0.float(), target.float(), reduction="sum") / z0.shape[0]
+
+
+def _int_tensor(timesteps: Tensor) -> torch.IntTensor:
+    """`timesteps` as diffusers' `add_noise` annotates them: the legacy `torch.IntTensor` class, which
+    no tensor is an instance of (it takes any integer tensor; the schedule's are int64)."""
+    return cast(torch.IntTensor, timesteps)
 
 
 def _as_epsilon(pred: Tensor, z_t: Tensor, alpha_bar: Tensor, prediction_type: str) -> Tensor:

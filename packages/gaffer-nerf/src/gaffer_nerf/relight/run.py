@@ -23,7 +23,7 @@ from gaffer_nerf.configs import DiffusionSamplingConfig, RelightConfig
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ShapeError
 from gaffer_nerf.fields.tensorf import TensoRFVM
-from gaffer_nerf.guidance.diffusion import DiffusionGuide
+from gaffer_nerf.guidance.diffusion import DiffusionGuide, TargetLighting
 from gaffer_nerf.guidance.perceptual import PerceptualLoss
 from gaffer_nerf.relight._common import StageReport
 from gaffer_nerf.relight.stage1 import run_stage1
@@ -86,7 +86,7 @@ class RelightResult:
 def relight_field(
     field: TensoRFVM,
     train: ViewSet,
-    envmap: object,
+    envmap: TargetLighting,
     guide: DiffusionGuide,
     config: RelightConfig,
     perceptual: PerceptualLoss,
