@@ -29,7 +29,7 @@ PACKAGES = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 # Each package's `all` extra holds everything its own tests need beyond the core dependencies.
 TEST_SPECS = tuple(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}[all]"))
 TYPECHECKED = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
-"""Packages pyright checks in the `typecheck` session (gaffer-nerf: issue 14)."""
+"""Packages pyright checks in the `typecheck` session: all four (issue 14 item 5)."""
 TEST_TOOLS = ("pytest==9.2.0", "jaxtyping>=0.2.36", "beartype>=0.19", "scipy>=1.11", "bpy==5.0.1")
 
 
@@ -84,7 +84,7 @@ def lint(session: nox.Session) -> None:
 
 @nox.session
 def typecheck(session: nox.Session) -> None:
-    """pyright over the packages in `TYPECHECKED` (issue 14: all four, 0 errors, is the goal)."""
+    """pyright over the packages in `TYPECHECKED` (all four, 0 errors: issue 14 item 5)."""
     _install(session, "torch==2.13.0", "numpy==1.26.4")
     # bpy is left out on purpose (hundreds of MB): its modules declare it has no stubs anyway.
     _install(
