@@ -316,7 +316,7 @@ def test_a_failed_rerun_leaves_the_earlier_folder_as_it_was(
 ) -> None:
     """Issue 17: the demo folder is complete or absent; a rerun that fails (an error, Ctrl-C) while
     writing leaves the earlier run's files untouched, and a finished rerun leaves none of them."""
-    from gaffer_diffusion import demo as demo_module
+    from gaffer_diffusion.demo import run as demo_run  # run_demo looks render_html up there
 
     out = tmp_path / "out"
     cfg = {"checkpoint": model_dir, "example": example, "num_inference_steps": 2}
@@ -332,7 +332,7 @@ def test_a_failed_rerun_leaves_the_earlier_folder_as_it_was(
     def fail(*args, **kwargs):
         raise failure
 
-    monkeypatch.setattr(demo_module, "render_html", fail)  # the last file written
+    monkeypatch.setattr(demo_run, "render_html", fail)  # the last file written
     with pytest.raises(type(failure)):
         run_demo(DemoConfig(out=out, frames=0, extra_hdris=False, **cfg))
     assert files() == before

@@ -1,0 +1,50 @@
+"""The turntable: which bundled HDRI it spins, and its GIF (frames side by side, upscaled)."""
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from gaffer_diffusion.errors import ConfigError
+
+GIF_SCALE = 4
+"""Nearest-neighbour upscale of the model-size turntable frames in the GIF, so that it is watchable."""
+
+
+def _turntable_hdri(name: str | None) -> tuple[str, Any]:
+    """The turntable's bundled HDRI (`DemoConfig.turntable_hdri`) and its map."""
+    from gaffer_envmap import directionality
+    from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
+
+    names = sorted(bundled_hdris())
+    if name is not None:
+        if name not in names:
+            raise ConfigError(
+                f"`turntable_hdri` (--turntable-hdri) is {name!r}; expected one of {names}."
+            )
+        return name, read_bundled_hdri(name)
+    maps = {n: read_bundled_hdri(n) for n in names}
+    best = max(names, key=lambda n: directionality(maps[n], about_up=True))
+    return best, maps[best]
+
+
+def _write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> None:
+    from gaffer_envmap.atomic import atomic_path
+
+    images = [Image.fromarray(f) for f in frames]
+    with atomic_path(path) as tmp:
+        images[0].save(
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=round(1000 / fps),
+            loop=0,
+        )
+
+
+def _side_by_side(*images: np.ndarray, scale: int = GIF_SCALE) -> np.ndarray:
+    row = np.concatenate(images, axis=1)
+    return row.repeat(scale, axis=0).repeat(scale, axis=1)
