@@ -23,8 +23,9 @@ The code: `config.py` holds `DemoConfig` and the sampling defaults; `model.py` l
 picks its sampling (`load_model`, `sampling_for`); `example.py` reads the example view;
 `lightings.py` builds the relighting jobs and `turntable.py` the turntable's HDRI and GIF;
 `sampling.py` runs the batched sampling; `writing.py` writes the images; `metrics_document.py`
-builds `metrics.json`, which `report_content.py` reads back for `report.html`; `run.py` holds
-`run_demo`, which ties them together, and `DemoResult`.
+builds the metrics document (a frozen dataclass, written as `metrics.json`), which
+`report_content.py` reads for `report.html`; `run.py` holds `run_demo`, which ties them together,
+and `DemoResult`.
 """
 
 from gaffer_diffusion.demo.config import DEFAULT_GUIDANCE, DEFAULT_STEPS, DemoConfig, InputChoice

@@ -1,4 +1,7 @@
-"""The contents of `metrics.json` (schema "gaffer.demo_metrics"): settings, timings, scores."""
+"""The contents of `metrics.json` (schema "gaffer.demo_metrics"): settings, timings, scores.
+
+`_metrics_document` builds a frozen `_MetricsDocument`; `run.py` writes its `as_json()` as
+`metrics.json` and `report_content.py` reads the same object for `report.html`."""
 
 import datetime
 import platform
@@ -49,6 +52,44 @@ def _means(report: MetricsReport) -> dict[str, Any]:
 
 
 @dataclass(frozen=True, kw_only=True)
+class _MetricsDocument:
+    """The metrics document, as written to `metrics.json` (`as_json`) and read by the report.
+
+    The top level is typed; the nested parts (settings, rounded timings, perceptual metric, means,
+    items, extras, turntable) are the JSON objects `metrics.json` holds, as they are written.
+    """
+
+    created_utc: str
+    settings: dict[str, Any]
+    timings: dict[str, Any]  # `_Timings.as_json()`: rounded, as the report shows them
+    perceptual: dict[str, Any]
+    summary: str
+    closer_than_input: float | None
+    means: dict[str, Any]
+    items: list[dict[str, Any]]
+    extra: list[dict[str, Any]]
+    turntable: dict[str, Any] | None
+
+    def as_json(self) -> dict[str, Any]:
+        """The contents of `metrics.json` (schema "gaffer.demo_metrics"), keys in file order."""
+        return {
+            "schema": METRICS_SCHEMA,
+            "schema_version": METRICS_SCHEMA_VERSION,
+            "producer": {"package": "gaffer-diffusion", "version": __version__},
+            "created_utc": self.created_utc,
+            "settings": self.settings,
+            "timings": self.timings,
+            "perceptual": self.perceptual,
+            "summary": self.summary,
+            "closer_than_input": self.closer_than_input,
+            "means": self.means,
+            "items": self.items,
+            "extra": self.extra,
+            "turntable": self.turntable,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
 class _Timings:
     load_model_s: float
     prepare_s: float
@@ -84,19 +125,16 @@ def _metrics_document(
     jobs: Sequence[_Lighting],
     files: dict[str, Any],
     config: DemoConfig,
-) -> dict[str, Any]:
-    """The contents of `metrics.json` (schema "gaffer.demo_metrics")."""
-    return {
-        "schema": METRICS_SCHEMA,
-        "schema_version": METRICS_SCHEMA_VERSION,
-        "producer": {"package": "gaffer-diffusion", "version": __version__},
-        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "settings": settings,
-        "timings": timings.as_json(),
-        "perceptual": perceptual,
-        "summary": _summary(model_report, baseline),
-        "closer_than_input": closer_than(model_report, baseline),
-        "means": {
+) -> _MetricsDocument:
+    """The metrics document (schema "gaffer.demo_metrics"); `as_json()` is `metrics.json`."""
+    return _MetricsDocument(
+        created_utc=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        settings=settings,
+        timings=timings.as_json(),
+        perceptual=perceptual,
+        summary=_summary(model_report, baseline),
+        closer_than_input=closer_than(model_report, baseline),
+        means={
             "relit": _means(model_report),
             "baselines": {
                 "input": _means(baseline),
@@ -106,7 +144,7 @@ def _metrics_document(
                 "full frame",
             },
         },
-        "items": [
+        items=[
             {
                 "name": jobs[i].key,
                 "lighting": jobs[i].label,
@@ -117,12 +155,12 @@ def _metrics_document(
             }
             for i in range(len(example.pairs))
         ],
-        "extra": [
+        extra=[
             {"name": j.key, "lighting": j.label, "files": files[j.key]}
             for j in jobs
             if j.kind == "extra"
         ],
-        "turntable": None
+        turntable=None
         if not config.frames
         else {
             "lighting": next(j.label for j in jobs if j.kind == "turntable").split(",")[0],
@@ -131,7 +169,7 @@ def _metrics_document(
             "gif": files["turntable"]["gif"],
             "frame_pngs": files["turntable"]["frames"],
         },
-    }
+    )
 
 
 def _summary(model_report: MetricsReport, baseline: MetricsReport) -> str:

@@ -4,6 +4,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from gaffer_diffusion.demo.lightings import _Lighting
+from gaffer_diffusion.demo.metrics_document import _MetricsDocument
 from gaffer_diffusion.metrics import ImageScores, MetricsReport
 from gaffer_diffusion.report import LightingRow, ReportContent
 
@@ -30,14 +31,14 @@ def _row_scores(item: dict[str, Any]) -> tuple[tuple[str, ImageScores], ...]:
 
 
 def _report_content(
-    metrics: dict[str, Any],
+    metrics: _MetricsDocument,
     jobs: Sequence[_Lighting],
     files: dict[str, Any],
     model_report: MetricsReport,
     baseline: MetricsReport,
     perceptual: dict[str, Any],
 ) -> ReportContent:
-    items = {it["name"]: it for it in metrics["items"]}
+    items = {it["name"]: it for it in metrics.items}
     rows = []
     for job in jobs:
         if job.kind == "turntable":
@@ -79,7 +80,7 @@ def _report_content(
     ]
     if baseline.mean_aligned_mask is not None:
         means.append(("baseline: input channel-aligned (mask)", baseline.mean_aligned_mask))
-    s = metrics["settings"]
+    s = metrics.settings
     name = perceptual["name"]
     note = None
     if name == "stlpips-alex":
@@ -88,8 +89,8 @@ def _report_content(
         )
     elif name is None:
         note = f"Perceptual metric unavailable: {perceptual['unavailable_reason']}"
-    tt = metrics["turntable"]
-    timings = metrics["timings"]
+    tt = metrics.turntable
+    timings = metrics.timings
     return ReportContent(
         title=f"gaffer relighting demo: {s['model']} on {s['object']}",
         settings=tuple((k, str(v)) for k, v in s.items()),
@@ -108,6 +109,6 @@ def _report_content(
         rows=tuple(rows),
         turntable_gif=None if tt is None else tt["gif"],
         turntable_label=None if tt is None else f"{tt['lighting']}, {tt['frames']} frames",
-        created_utc=metrics["created_utc"],
-        summary=metrics["summary"],
+        created_utc=metrics.created_utc,
+        summary=metrics.summary,
     )

@@ -198,7 +198,7 @@ def run_demo(
             files=files,
             config=config,
         )
-        _write_text(stage / "metrics.json", json_dumps(metrics, indent=2) + "\n")
+        _write_text(stage / "metrics.json", json_dumps(metrics.as_json(), indent=2) + "\n")
         content = _report_content(metrics, jobs, files, model_report, baseline, perceptual_info)
         _write_text(stage / "report.html", render_html(content))
     metrics_json, report_html = out / "metrics.json", out / "report.html"
@@ -213,5 +213,5 @@ def run_demo(
         seconds=seconds,
         mean_relit=model_report.mean_raw,
         mean_input=baseline.mean_raw,
-        summary=metrics["summary"],
+        summary=metrics.summary,
     )
