@@ -1,5 +1,7 @@
 """Config validation, deterministic planning, poses and augmentation (pure, no bpy)."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -29,7 +31,7 @@ from gaffer_envmap.environment_map import EnvironmentMap
 
 
 def _pool(n: int = 3) -> list[PoolEntry]:
-    return [PoolEntry(name=f"m{i}", path=f"/x/m{i}.exr", sha256="0" * 64) for i in range(n)]  # type: ignore[arg-type]
+    return [PoolEntry(name=f"m{i}", path=Path(f"/x/m{i}.exr"), sha256="0" * 64) for i in range(n)]
 
 
 def test_version_is_semver() -> None:

@@ -31,7 +31,9 @@ def _plan(res: int) -> ObjectPlan:
     lit = LitImage(lighting_index=0, envmap=ref, exr="lit/000_000.png", png="lit/000_000.png")
     view = ViewRecord(
         index=0,
-        camera=CameraSample(elevation_deg=10.0, azimuth_deg=0.0, distance=2.0, position=(0, 0, 2)),
+        camera=CameraSample(
+            elevation_deg=10.0, azimuth_deg=0.0, distance=2.0, position=(0.0, 0.0, 2.0)
+        ),
         lit=(lit,),
         area=None,
         alpha="alpha/000.png",

@@ -11,7 +11,7 @@ This module is pure (no bpy): the reader, the planner and the Blender worker all
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_data.errors import ConfigError
 
@@ -21,7 +21,9 @@ ViewTransform = Literal["Filmic", "AgX", "Standard", "Khronos PBR Neutral", "Raw
 _VIEW_TRANSFORMS = ("Filmic", "AgX", "Standard", "Khronos PBR Neutral", "Raw")
 
 
-def _check_range(name: str, lo: float, hi: float, *, min_lo: float | None = None) -> None:
+def _check_range(
+    name: str, lo: float | int, hi: float | int, *, min_lo: float | int | None = None
+) -> None:
     if not lo <= hi:
         raise ConfigError(
             f"`{name}` is ({lo}, {hi}); the lower bound must not exceed the upper bound."
@@ -130,6 +132,11 @@ class BounceConfig:
 MultiviewLayout = Literal["sphere", "orbit"]
 """Camera layouts of multi-view sets: a Fibonacci lattice over an elevation band, or one ring."""
 
+if TYPE_CHECKING:
+    _LayoutArg = MultiviewLayout
+else:  # at run time any str reaches `MultiviewConfig`, whose `__post_init__` refuses an unknown one
+    _LayoutArg = str
+
 
 @dataclass(frozen=True, kw_only=True)
 class MultiviewConfig:
@@ -154,8 +161,8 @@ class MultiviewConfig:
 
     train_views: int = 100
     test_views: int = 20
-    layout: MultiviewLayout = "sphere"
-    elevation_deg: tuple[float, float] = (-30.0, 90.0)
+    layout: _LayoutArg = "sphere"
+    elevation_deg: tuple[float | int, float | int] = (-30.0, 90.0)
     orbit_elevation_deg: float = 30.0
     distance: float = 2.0
 

@@ -90,7 +90,7 @@ def read_exr(path: Path) -> dict[str, np.ndarray]:
 
 
 def write_uniform_envmaps(
-    folder: Path, colors: dict[str, tuple[float, float, float]], height: int = 8
+    folder: Path, colors: dict[str, tuple[float | int, float | int, float | int]], height: int = 8
 ) -> Path:
     """Write one constant-colour `[height, 2*height]` EXR per {name: linear rgb}; returns `folder`."""
     for name, rgb in colors.items():

@@ -9,10 +9,18 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gaffer_data.errors import ConfigError
 from gaffer_data.filter.features import ObjectFeatures
 from gaffer_data.filter.objaverse import ObjaverseAnnotation
+
+if TYPE_CHECKING:
+    _Names = tuple[str, ...]
+    _Flag = bool
+else:  # from JSON any value reaches these fields; `__post_init__` refuses a wrong one (ConfigError)
+    _Names = object
+    _Flag = object
 
 _NAME_LISTS = ("allowed_licenses", "excluded_tags", "excluded_categories")
 
@@ -23,8 +31,8 @@ class RuleOutcome:
 
     rule: str
     passed: bool
-    value: float | str | None
-    limit: float | str | None
+    value: float | int | str | None
+    limit: float | int | str | None
     reason: str
 
 
@@ -56,23 +64,23 @@ class FilterRules:
             on geometry only, so the annotation rules above do not apply to them).
     """
 
-    max_file_mb: float = 200.0
+    max_file_mb: float | int = 200.0
     min_faces: int = 4
     max_faces: int = 2_000_000
-    max_aspect_ratio: float = 50.0
+    max_aspect_ratio: float | int = 50.0
     max_components: int = 5_000
-    max_non_manifold_fraction: float = 0.5
-    max_degenerate_fraction: float = 0.2
-    max_transmission: float = 0.5
-    min_alpha: float = 0.5
-    max_emission: float = 1.0
+    max_non_manifold_fraction: float | int = 0.5
+    max_degenerate_fraction: float | int = 0.2
+    max_transmission: float | int = 0.5
+    min_alpha: float | int = 0.5
+    max_emission: float | int = 1.0
     require_material: bool = False
-    allowed_licenses: tuple[str, ...] | None = None
-    excluded_tags: tuple[str, ...] = ()
-    excluded_categories: tuple[str, ...] = ()
+    allowed_licenses: _Names | None = None
+    excluded_tags: _Names = ()
+    excluded_categories: _Names = ()
     max_annotated_faces: int | None = None
-    reject_animated: bool = False
-    require_annotation: bool = False
+    reject_animated: _Flag = False
+    require_annotation: _Flag = False
 
     def __post_init__(self) -> None:
         for name in _NAME_LISTS:
@@ -136,7 +144,11 @@ class FilterRules:
         out: list[RuleOutcome] = []
 
         def add(
-            rule: str, ok: bool, value: float | str | None, limit: float | str | None, reason: str
+            rule: str,
+            ok: bool,
+            value: float | int | str | None,
+            limit: float | int | str | None,
+            reason: str,
         ) -> None:
             out.append(
                 RuleOutcome(
@@ -195,7 +207,7 @@ class FilterRules:
         ]
         faces = max(f.face_count, 1)
 
-        def check(rule: str, value: float, limit: float, ok: bool, what: str) -> None:
+        def check(rule: str, value: float | int, limit: float | int, ok: bool, what: str) -> None:
             reason = "" if ok else f"{what}: {value:.4g} vs limit {limit:.4g}"
             shown = float(value) if math.isfinite(value) else None  # JSON has no NaN/inf
             out.append(RuleOutcome(rule=rule, passed=ok, value=shown, limit=limit, reason=reason))

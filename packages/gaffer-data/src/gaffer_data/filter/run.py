@@ -15,6 +15,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gaffer_data._atomic import atomic_write_text
 from gaffer_data.errors import ConfigError
@@ -31,6 +32,11 @@ from gaffer_data.filter.objaverse import (
 )
 from gaffer_data.filter.rules import FilterRules
 from gaffer_data.recipes import scan_objects
+
+if TYPE_CHECKING:
+    _CountArg = int
+else:  # at run time any number reaches `filter_objects`, which refuses a non-integer with a ConfigError
+    _CountArg = int | float
 
 logger = logging.getLogger(__name__)
 
@@ -53,10 +59,10 @@ def filter_objects(
     rules_path: str | Path | None = None,
     classifier_path: str | Path | None = None,
     threshold: float = 0.5,
-    workers: int = 1,
-    timeout_s: float | None = DEFAULT_TIMEOUT_S,
+    workers: _CountArg = 1,
+    timeout_s: float | int | None = DEFAULT_TIMEOUT_S,
     annotations_path: str | Path | None = None,
-    max_worker_memory_mb: int = DEFAULT_MAX_WORKER_MEMORY_MB,
+    max_worker_memory_mb: _CountArg = DEFAULT_MAX_WORKER_MEMORY_MB,
 ) -> FilterSummary:
     """Filter a folder of objects (or an Objaverse-style cache) and write the JSONL manifest.
 
