@@ -7,12 +7,20 @@ Relighting needs Blender world-to-camera matrices (`w2c_blender`), derived here.
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 from torch import Tensor
 
 from gaffer_nerf.errors import CameraError, ShapeError
+
+if TYPE_CHECKING:
+    _C2W = Float[Tensor, "V 4 4"]
+    _PerView2 = Float[Tensor, "V 2"]
+else:  # `Cameras.__post_init__` checks these shapes itself (a ShapeError naming the field), so at
+    # run time the fields take any tensor and the test-time type hook does not refuse first
+    _C2W = _PerView2 = Tensor
 
 _OPENCV_TO_BLENDER = torch.tensor([1.0, -1.0, -1.0])
 
@@ -32,7 +40,7 @@ class RayBundle:
     def __len__(self) -> int:
         return int(self.origins_world.shape[0])
 
-    def select(self, index: Int[Tensor, " K"] | slice) -> "RayBundle":
+    def select(self, index: Int[Tensor, " K"] | Bool[Tensor, " N"] | slice) -> "RayBundle":
         """The rays at `index`."""
         return RayBundle(origins_world=self.origins_world[index], dirs_world=self.dirs_world[index])
 
@@ -67,9 +75,9 @@ class Cameras:
         (1024, 1)
     """
 
-    c2w_opencv: Float[Tensor, "V 4 4"]
-    focal_px: Float[Tensor, "V 2"]
-    principal_px: Float[Tensor, "V 2"]
+    c2w_opencv: _C2W
+    focal_px: _PerView2
+    principal_px: _PerView2
     width: int
     height: int
 

@@ -13,7 +13,7 @@ rates x 0.1^(1/200) per step.
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Literal, assert_never
+from typing import TYPE_CHECKING, Literal, assert_never
 
 from gaffer_nerf.errors import ConfigError
 
@@ -35,6 +35,12 @@ loss in Stage 2, and the SDS baseline (SDS on the input radiance field, no Stage
 PresetName = Literal["paper", "tiny"]
 
 ABLATIONS: tuple[Ablation, ...] = ("full", "no-stage1", "no-stage2", "sds-stage2", "sds-only")
+
+if TYPE_CHECKING:
+    _Stage2LossArg = Stage2Loss
+    _AblationArg = Ablation
+else:  # at run time any str reaches `Stage2Config` / `with_ablation`, which refuse an unknown one
+    _Stage2LossArg = _AblationArg = str  # with a ConfigError, also under the test-time type hook
 
 
 def _positive(name: str, value: float) -> None:
@@ -64,8 +70,8 @@ class SceneBoxConfig:
         white_background: composite renders over white (the authors' and NeRF-Synthetic's choice).
     """
 
-    aabb_min: tuple[float, float, float] = (-1.4, -1.4, -1.4)
-    aabb_max: tuple[float, float, float] = (1.4, 1.4, 1.4)
+    aabb_min: tuple[float | int, float | int, float | int] = (-1.4, -1.4, -1.4)
+    aabb_max: tuple[float | int, float | int, float | int] = (1.4, 1.4, 1.4)
     near: float = 0.2
     far: float = 3.2
     white_background: bool = True
@@ -536,7 +542,7 @@ class Stage2Config:
     """
 
     iterations: int = 500
-    loss: Stage2Loss = "guidance"
+    loss: _Stage2LossArg = "guidance"
     t_start: float = 0.4
     t_end: float = 0.05
     t_schedule: TStarSchedule = "exponential"
@@ -602,7 +608,7 @@ class RelightConfig:
                 "`stage1` and `stage2` are both None: nothing would be relit. Keep at least one."
             )
 
-    def with_ablation(self, ablation: Ablation) -> "RelightConfig":
+    def with_ablation(self, ablation: _AblationArg) -> "RelightConfig":
         """This config turned into one of the paper's ablations (§4.4).
 
         Args:

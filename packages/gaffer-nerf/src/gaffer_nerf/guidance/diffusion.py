@@ -14,7 +14,7 @@ instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started f
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TypeVar, cast
+from typing import TYPE_CHECKING, TypeVar, cast
 
 import numpy as np
 import torch
@@ -453,7 +453,13 @@ class DiffusionGuide:
         return 0.5 * F.mse_loss(z0.float(), target.float(), reduction="sum") / z0.shape[0]
 
 
-def _int_tensor(timesteps: Tensor) -> torch.IntTensor:
+if TYPE_CHECKING:
+    _IntTensor = torch.IntTensor
+else:  # at run time an int64 tensor: no tensor is an instance of the legacy class (see below)
+    _IntTensor = Tensor
+
+
+def _int_tensor(timesteps: Tensor) -> _IntTensor:
     """`timesteps` as diffusers' `add_noise` annotates them: the legacy `torch.IntTensor` class, which
     no tensor is an instance of (it takes any integer tensor; the schedule's are int64)."""
     return cast(torch.IntTensor, timesteps)
