@@ -38,7 +38,7 @@ def _even(frame: np.ndarray) -> np.ndarray:
     return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
 
 
-def _write_ffmpeg(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
+def _write_ffmpeg(frames: Sequence[np.ndarray], path: Path, fps: float | int) -> None:
     h, w = frames[0].shape[:2]
     cmd = ["ffmpeg", "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24"]
     cmd += ["-s", f"{w}x{h}", "-r", f"{fps:g}", "-i", "-", "-c:v", "libx264"]
@@ -52,7 +52,7 @@ def _write_ffmpeg(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
         )
 
 
-def _write_pyav(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
+def _write_pyav(frames: Sequence[np.ndarray], path: Path, fps: float | int) -> None:
     import fractions
 
     av: Any = importlib.import_module("av")
@@ -71,7 +71,7 @@ def _write_pyav(frames: Sequence[np.ndarray], path: Path, fps: float) -> None:
 
 
 def write_animation(
-    frames: Sequence[np.ndarray], stem: Path, *, fmt: VideoFormat = "auto", fps: float = 12.0
+    frames: Sequence[np.ndarray], stem: Path, *, fmt: VideoFormat = "auto", fps: float | int = 12.0
 ) -> Path:
     """Write `[H, W, 3]` uint8 frames as `stem.mp4` or `stem.gif`; return the path written.
 

@@ -16,7 +16,7 @@ antialias), [-1, 1] -> [0, 1], OpenAI mean/std.
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -31,9 +31,18 @@ from gaffer_diffusion.errors import MissingDependencyError, ShapeError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_envmap.compat_mode import Compat
 from gaffer_envmap.environment_map import EnvironmentMap
+from gaffer_envmap.poses import W2CBlender
 
 CompatMode = Compat
 """gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""
+
+if TYPE_CHECKING:
+    _Images = Float[Tensor, "B 3 H W"]
+    _Masks = Float[Tensor, "B 1 H W"]
+else:  # `LightingMaps` / `RelightingConditions.__post_init__` check these shapes themselves (a
+    # ShapeError naming the field and the fix), so at run time the fields take any tensor and the
+    # test-time type hook does not refuse first
+    _Images = _Masks = Tensor
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -49,8 +58,8 @@ class LightingMaps:
         InputValueError: on NaN/Inf or values outside [0, 1].
     """
 
-    ldr: Float[Tensor, "B 3 H W"]
-    hdr: Float[Tensor, "B 3 H W"]
+    ldr: _Images
+    hdr: _Images
 
     def __post_init__(self) -> None:
         check_image_batch("ldr", self.ldr)
@@ -93,9 +102,9 @@ class RelightingConditions:
         2
     """
 
-    image: Float[Tensor, "B 3 H W"]
+    image: _Images
     lighting: LightingMaps
-    mask: Float[Tensor, "B 1 H W"] | None = None
+    mask: _Masks | None = None
 
     def __post_init__(self) -> None:
         check_image_batch("image", self.image)
@@ -314,7 +323,7 @@ def hints_for(conditions: RelightingConditions, size: int) -> Float[Tensor, "B 1
 
 def lighting_from_envmap(
     env: EnvironmentMap | Sequence[EnvironmentMap] | np.ndarray | Tensor,
-    w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"] | Sequence[Any],
+    w2c_blender: Float[Tensor, "B 3 4"] | Float[Tensor, "B 3 3"] | W2CBlender | Sequence[Any],
     *,
     size: int = 256,
     compat: CompatMode = "neural-gaffer",
@@ -329,7 +338,7 @@ def lighting_from_envmap(
     Args:
         env: a `gaffer_envmap.EnvironmentMap` (or one per item), or `[He, We, 3]` linear radiance.
         w2c_blender: `[B, 3, 4]` or `[B, 3, 3]` world-to-camera matrices in Blender's camera convention,
-            or a sequence of `gaffer_envmap.W2CBlender` poses.
+            or one `gaffer_envmap.W2CBlender` pose or a sequence of them.
         size: side length of the square maps (the model resolution).
         compat: encoding mode of gaffer-envmap.
         spin_deg: extra spin of the light about world up (turntables), scalar or `[B]`.

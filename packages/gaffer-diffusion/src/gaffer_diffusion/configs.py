@@ -22,7 +22,7 @@ Presets (`get_preset`):
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion import _choices
 from gaffer_diffusion.errors import ConfigError
@@ -35,6 +35,12 @@ VAEKind = Literal["autoencoder-kl", "pixel"]
 `gaffer_diffusion.models.pixel.PixelAutoencoder` (pixel-space diffusion, downsampling factor 1)."""
 
 VAE_KINDS: tuple[VAEKind, ...] = ("autoencoder-kl", "pixel")
+
+if TYPE_CHECKING:
+    _VAEKindArg = VAEKind
+    _PresetArg = PresetName
+else:  # at run time any str reaches `VAEConfig` and `get_preset`, which refuse an unknown one with a
+    _VAEKindArg = _PresetArg = str  # ConfigError (also under the test-time type hook)
 
 PREDICTION_TYPES: tuple[str, ...] = ("epsilon", "v_prediction", "sample")
 """What the UNet may predict (diffusers' `prediction_type`)."""
@@ -123,7 +129,7 @@ class VAEConfig:
         sample_size: nominal image size.
     """
 
-    kind: VAEKind = "autoencoder-kl"
+    kind: _VAEKindArg = "autoencoder-kl"
     block_out_channels: tuple[int, ...] = (128, 256, 512, 512)
     layers_per_block: int = 2
     latent_channels: int = LATENT_CHANNELS
@@ -427,7 +433,7 @@ def _gaffer_tiny() -> ModelConfig:
 PRESETS = _choices.PRESETS
 
 
-def get_preset(name: PresetName) -> ModelConfig:
+def get_preset(name: _PresetArg) -> ModelConfig:
     """A preset `ModelConfig` by name.
 
     Args:

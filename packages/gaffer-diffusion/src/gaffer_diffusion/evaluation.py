@@ -59,6 +59,7 @@ from gaffer_diffusion.preprocess import (
     object_square,
     read_alpha,
 )
+from gaffer_envmap.compat_mode import CompatArg
 
 logger = logging.getLogger(__name__)
 
@@ -164,7 +165,7 @@ class EvaluationConfig:
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     seed: int = 0
     batch_size: int = 4
-    compat: CompatMode = "neural-gaffer"
+    compat: CompatArg = "neural-gaffer"
     predictions_dir: Path | None = None
     progress: bool = False
     baselines: bool = True

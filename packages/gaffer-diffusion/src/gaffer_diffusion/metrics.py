@@ -50,8 +50,11 @@ def _check_pair(pred: Tensor, gt: Tensor) -> None:
         raise ShapeError("pred", tuple(pred.shape), f"the shape of `gt` {tuple(gt.shape)}")
 
 
-def psnr(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
-    """Per-image PSNR in dB for images in [0, 1] (inf for identical images).
+def psnr(pred: Tensor, gt: Tensor) -> Float[Tensor, " B"]:
+    """Per-image PSNR in dB for `[B, 3, H, W]` images in [0, 1] (inf for identical images).
+
+    Raises:
+        ShapeError: `pred` and `gt` are not `[B, 3, H, W]` batches of one shape.
 
     Example:
         >>> import torch
@@ -59,6 +62,12 @@ def psnr(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[
         20.0
     """
     _check_pair(pred, gt)
+    return _psnr(pred, gt)
+
+
+def _psnr(pred: Float[Tensor, "B 3 H W"], gt: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
+    """`psnr` once `_check_pair` has checked the shapes (with a ShapeError naming the argument; the
+    public signature takes any tensor so that this error, not the test-time type hook's, speaks)."""
     mse = ((pred.double() - gt.double()) ** 2).mean(dim=(1, 2, 3))
     return (10.0 * torch.log10(1.0 / mse)).float()
 
@@ -134,27 +143,37 @@ def object_crop_box(mask: Float[Tensor, "1 H W"]) -> tuple[int, int, int, int]:
     return int(ys.min()), int(xs.min()), int(ys.max()) + 1, int(xs.max()) + 1
 
 
-def channel_align(
-    pred: Float[Tensor, "B 3 H W"],
-    gt: Float[Tensor, "B 3 H W"],
-    mask: Float[Tensor, "B 1 H W"] | None = None,
-) -> Float[Tensor, "B 3 H W"]:
+def channel_align(pred: Tensor, gt: Tensor, mask: Tensor | None = None) -> Float[Tensor, "B 3 H W"]:
     """Rescale each channel of `pred` so its mean matches `gt`'s: pred_c * mean(gt_c) / mean(pred_c).
 
     Args:
-        pred: prediction in [0, 1].
-        gt: ground truth in [0, 1].
+        pred: `[B, 3, H, W]` prediction in [0, 1].
+        gt: `[B, 3, H, W]` ground truth in [0, 1].
         mask: `[B, 1, H, W]` weights in [0, 1]; the means are taken over it. None: whole image.
 
     Returns:
         The aligned prediction, clipped to [0, 1].
+
+    Raises:
+        ShapeError: `pred`, `gt` or `mask` of the wrong shape (the message names which).
     """
     _check_pair(pred, gt)
+    if mask is not None and (
+        mask.ndim != 4 or mask.shape[1] != 1 or mask.shape[2:] != pred.shape[2:]
+    ):
+        raise ShapeError("mask", tuple(mask.shape), f"[B, 1, {pred.shape[2]}, {pred.shape[3]}]")
+    return _channel_align(pred, gt, mask)
+
+
+def _channel_align(
+    pred: Float[Tensor, "B 3 H W"],
+    gt: Float[Tensor, "B 3 H W"],
+    mask: Float[Tensor, "B 1 H W"] | None,
+) -> Float[Tensor, "B 3 H W"]:
+    """`channel_align` once its shapes are checked (there with a ShapeError naming the argument)."""
     if mask is None:
         w = torch.ones_like(pred[:, :1])
     else:
-        if mask.ndim != 4 or mask.shape[1] != 1 or mask.shape[2:] != pred.shape[2:]:
-            raise ShapeError("mask", tuple(mask.shape), f"[B, 1, {pred.shape[2]}, {pred.shape[3]}]")
         w = mask.to(pred.dtype)
     wsum = w.sum(dim=(2, 3)).clamp_min(_EPS)
     mean_pred = (pred * w).sum(dim=(2, 3)) / wsum  # [B, 3]

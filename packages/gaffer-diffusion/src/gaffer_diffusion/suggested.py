@@ -15,7 +15,7 @@ import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointMismatchError
@@ -30,6 +30,12 @@ __all__ = [
 
 SUGGESTION_KEY = "suggested_sampling"
 """The manifest key holding a `SuggestedSampling`."""
+
+
+if TYPE_CHECKING:
+    _CompatArg = Literal["neural-gaffer", "default"]
+else:  # from a manifest any value reaches `compat`; `__post_init__` names a wrong one (ValueError)
+    _CompatArg = object
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -47,11 +53,11 @@ class SuggestedSampling:
     """
 
     num_inference_steps: int
-    guidance_scale: float
+    guidance_scale: float | int
     average_samples: int = 1
     mirror_average: bool = False
-    compat: Literal["neural-gaffer", "default"] = "neural-gaffer"
-    object_fraction: float | None = None
+    compat: _CompatArg = "neural-gaffer"
+    object_fraction: float | int | None = None
     source: str = ""
 
     def __post_init__(self) -> None:

@@ -205,10 +205,10 @@ class Intrinsics:
 
     width: int
     height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
+    fx: float | int
+    fy: float | int
+    cx: float | int
+    cy: float | int
 
     def matrix(self) -> np.ndarray:
         """The `[3, 3]` float64 OpenCV camera matrix K."""

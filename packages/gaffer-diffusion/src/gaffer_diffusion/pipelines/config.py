@@ -2,7 +2,7 @@
 
 import math
 from dataclasses import dataclass
-from typing import Literal, assert_never
+from typing import TYPE_CHECKING, Literal, assert_never
 
 import torch
 
@@ -18,6 +18,12 @@ AttentionBackend = Literal["sdpa", "eager"]
 """Attention kernels: PyTorch `scaled_dot_product_attention` (diffusers' default) or plain matmuls."""
 
 DtypeName = Literal["float32", "float16", "bfloat16"]
+
+if TYPE_CHECKING:
+    _SchedulerArg = SchedulerName
+    _DtypeArg = DtypeName
+else:  # at run time any str reaches `SamplingConfig` / `RuntimeConfig`, which refuse an unknown one
+    _SchedulerArg = _DtypeArg = str
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -49,7 +55,7 @@ class SamplingConfig:
 
     num_inference_steps: int = 50
     guidance_scale: float = 3.0
-    scheduler: SchedulerName = "ddim"
+    scheduler: _SchedulerArg = "ddim"
     eta: float = 0.0
     timestep_spacing: Literal["leading", "trailing", "linspace"] | None = None
     latent_mode: LatentMode = "mode"
@@ -118,7 +124,7 @@ class RuntimeConfig:
     """
 
     device: str = "cpu"
-    dtype: DtypeName = "float32"
+    dtype: _DtypeArg = "float32"
     attention: AttentionBackend = "sdpa"
     compile: bool = False
     compile_mode: str | None = None

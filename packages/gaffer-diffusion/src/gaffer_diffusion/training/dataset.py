@@ -34,7 +34,7 @@ from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -380,6 +380,12 @@ class _ViewEntry:
     w2c_blender: np.ndarray
 
 
+if TYPE_CHECKING:
+    _RootsArg = Sequence[str | Path]
+else:  # a single path also reaches `RelightTrainDataset`, which refuses it with a DataError naming
+    _RootsArg = Sequence[str | Path] | Path  # the fix (a str is a sequence of str already)
+
+
 class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
     """Samples of one or more datasets, indexed by (object, view).
 
@@ -405,7 +411,7 @@ class RelightTrainDataset(torch.utils.data.Dataset[TrainItem]):
 
     def __init__(
         self,
-        roots: Sequence[str | Path],
+        roots: _RootsArg,
         config: DataConfig,
         resolution: int,
         *,
