@@ -173,6 +173,126 @@ def run_relight(
     }
 
 
+FLICKER_FRAMES = 16  # the test orbit: 22.5 degrees a frame, constant elevation, a closed loop
+FLICKER_FRAMES_QUICK = 8
+FLICKER_STAGE1_ITERS = 300
+
+
+def _masked_psnr(pred: Any, gt: Any, alpha: Any) -> float:
+    """PSNR over the object mask (alpha-weighted), [T, 3, H, W] against [T, 3, H, W]."""
+    import math
+
+    w = alpha.unsqueeze(1).double()
+    mse = float(((pred.double() - gt.double()).square() * w).sum() / (3 * w.sum()))
+    return round(10 * math.log10(1.0 / max(mse, 1e-12)), 3)
+
+
+def run_flicker(
+    quick: bool,
+    field: Any,
+    train: Any,
+    env0: Any,
+    env1: Any,
+    models: Sequence[str] = ("gaffer-tiny",),
+) -> dict[str, Any]:
+    """Multi-view consistency (issue 20 item 3) along a closed test orbit under the target lighting.
+
+    2D: every orbit frame of the input lighting relit by the diffusion model as Stage 1 relights its
+    training views, per-view vs shared initial noise, mirror average off / on; `temporal_flicker`
+    against the ground-truth orbit (the analytic sphere under the target lighting), and the masked PSNR.
+    3D: Stage 1 alone (its targets with per-view vs shared noise), the relit field rendered along the
+    same orbit. The unrelit input orbit is the reference a relighting should not flicker more than.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    from gaffer_diffusion import RelightPipeline
+    from gaffer_nerf import load_perceptual_loss, relight_field, relight_preset
+    from gaffer_nerf.evaluate import render_views
+    from gaffer_nerf.flicker import temporal_flicker
+    from gaffer_nerf.guidance import DiffusionGuide, load_relighting_model
+    from gaffer_nerf.testing import sphere_viewset
+    from gaffer_nerf.video import orbit_path
+
+    orbit = orbit_path(train.cameras, FLICKER_FRAMES_QUICK if quick else FLICKER_FRAMES)
+    gt_set, inp_set = sphere_viewset(orbit, env1), sphere_viewset(orbit, env0)
+    gt = gt_set.rgb_srgb.permute(0, 3, 1, 2).contiguous()
+    inputs = inp_set.rgb_srgb.permute(0, 3, 1, 2).contiguous()
+    alpha = gt_set.alpha
+    assert alpha is not None  # the sphere's renders carry their coverage
+
+    def score(seq: Any) -> dict[str, Any]:
+        rep = temporal_flicker(seq, gt, alpha, closed=True)
+        return {
+            "flicker": round(rep.flicker, 5),
+            "energy_ratio": round(rep.energy_ratio, 3),
+            "psnr_mask_db": _masked_psnr(seq, gt, alpha),
+        }
+
+    rows: list[dict[str, Any]] = [
+        {"what": "ground truth", **score(gt)},
+        {"what": "unrelit input", **score(inputs)},
+    ]
+    perceptual = load_perceptual_loss()
+    for name in models:
+        if name == "gaffer-tiny":
+            loaded = load_relighting_model(None)
+            base: dict[str, Any] = {}
+        else:  # the random smoke model: no suggestion of its own, 10 DDIM steps
+            loaded = load_relighting_model(None, smoke=True)
+            base = {"num_inference_steps": 10}
+        pipe = RelightPipeline(loaded.model)
+        for mirror in (False, True):
+            for shared in (False, True):
+                cfg = relight_preset("tiny").diffusion
+                cfg = dataclasses.replace(cfg, mirror_average=mirror, shared_noise=shared, **base)
+                guide = DiffusionGuide(pipe, cfg, loaded.suggested)
+                cond = guide.encode_views(inputs, guide.lighting(env1, orbit.w2c_blender()))
+                t0 = time.perf_counter()
+                relit = guide.relight_views(cond).float()
+                secs = time.perf_counter() - t0
+                relit = F.interpolate(
+                    relit, size=gt.shape[2:], mode="bilinear", antialias=True, align_corners=False
+                )
+                row = {
+                    "what": f"{name}: 2D relit orbit",
+                    "mirror_average": mirror,
+                    "noise": "shared" if shared else "per view",
+                    "seconds": round(secs, 2),
+                    **score(relit),
+                }
+                rows.append(row)
+                common.log(f"  flicker {row}")
+        # 3D: Stage 1 alone from the training views' targets, rendered along the orbit
+        s1 = relight_preset("tiny", "no-stage2")
+        assert s1.stage1 is not None
+        s1 = dataclasses.replace(
+            s1, stage1=dataclasses.replace(s1.stage1, iterations=FLICKER_STAGE1_ITERS)
+        )
+        for shared in (False, True):
+            cfg = dataclasses.replace(s1.diffusion, shared_noise=shared, **base)
+            guide = DiffusionGuide(pipe, cfg, loaded.suggested)
+            res = relight_field(
+                field, train, env1, guide, dataclasses.replace(s1, diffusion=cfg), perceptual
+            )
+            with torch.no_grad():
+                seq = render_views(res.field, orbit)
+            row = {
+                "what": f"{name}: Stage 1 field, orbit render",
+                "mirror_average": guide.sampling.mirror_average,
+                "noise": "shared" if shared else "per view",
+                "stage1_iterations": FLICKER_STAGE1_ITERS,
+                **score(seq),
+            }
+            rows.append(row)
+            common.log(f"  flicker {row}")
+    return {
+        "orbit_frames": orbit.num_views,
+        "metric": "gaffer_nerf.flicker.temporal_flicker(closed=True, mask=ground-truth alpha)",
+        "rows": rows,
+    }
+
+
 def plot(payload: dict[str, Any]) -> Any:
     import matplotlib
 
@@ -290,6 +410,23 @@ def markdown(payload: dict[str, Any]) -> str:
             f"| {r['iterations']} iterations | {r['seconds']:.1f} | {r['test_psnr_db']:.2f} "
             f"| {r['test_psnr_aligned_db']:.2f} |"
         )
+    fl = payload.get("flicker")
+    if fl is not None:
+        lines += [
+            "",
+            f"Multi-view consistency along a closed {fl['orbit_frames']}-frame test orbit under the "
+            "target lighting (`gaffer_nerf.flicker`: mean |frame-to-frame change - the ground "
+            "truth's| in the mask; energy ratio > 1 moves more than the truth):",
+            "",
+            "| sequence | mirror average | noise | flicker | energy ratio | masked PSNR (dB) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for r in fl["rows"]:
+            mirror = {True: "on", False: "off"}.get(r.get("mirror_average"), "-")
+            lines.append(
+                f"| {r['what']} | {mirror} | {r.get('noise', '-')} | {r['flicker']:.4f} "
+                f"| {r['energy_ratio']:.2f} | {r['psnr_mask_db']:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -315,6 +452,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     t0 = time.perf_counter()
     fits, field = run_fits(args.quick, args.seed, train, test)
     relight = run_relight(args.quick, field, train, train_target, test_target, env1)
+    flicker = run_flicker(args.quick, field, train, env0, env1)
     payload: dict[str, Any] = {
         "name": NAME,
         "machine": meta,
@@ -329,6 +467,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         "fits": fits,
         "relight": relight,
+        "flicker": flicker,
         "wall_seconds": round(time.perf_counter() - t0, 1),
     }
     fig = plot(payload)

@@ -410,10 +410,11 @@ class DiffusionSamplingConfig:
         shared_noise: every view of Stage 1 starts from the same initial noise (seed `seed`, and
             the same posterior noise with `latent_mode="sample"`), so the relit views differ only
             where their inputs and lightings do. False (default): view i uses seed `seed + i`.
-            Measured (issue 20, gaffer-tiny on the sphere scene, 16-frame orbit, 4 seeds): shared
-            noise cuts the relit views' flicker by 30% (`gaffer_nerf.flicker`) but the Stage-1
-            field fitted to them scores 0.6 dB lower with 4% less flicker, because the field
-            averages independent per-view noise away and bakes in noise shared by every view.
+            Measured (issue 20, `benchmarks/bench_nerf.py`, gaffer-tiny 0.4 on the sphere scene,
+            16-frame closed orbit, one run): shared noise cuts the relit views' flicker by 31%
+            (`gaffer_nerf.flicker`, 0.064 -> 0.044) but costs 0.8 dB, and the Stage-1 field fitted to
+            them flickers 3% less and scores 0.64 dB lower: the field averages independent per-view
+            noise away and bakes in noise shared by every view.
     """
 
     num_inference_steps: int | None = None
