@@ -166,10 +166,24 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ckpt_dir = cfg.output_dir / "checkpoints"
     resume = ckpt_dir.is_dir() and any(ckpt_dir.glob("checkpoint-*"))
     result = train(cfg, resume=resume)
+    if result.step < args.min_steps and result.checkpoint is not None:
+        # a slow CPU (e.g. no native bf16: fp32, several times slower) gets too few steps in the time
+        # limit for "the loss falls" to mean anything: go on, resume-exact, to `--min-steps`
+        logger.info(
+            "%d steps in the %.1f-minute limit; continuing to --min-steps %d",
+            result.step,
+            args.minutes,
+            args.min_steps,
+        )
+        longer = dataclasses.replace(
+            cfg, train=dataclasses.replace(cfg.train, max_time_s=None, max_steps=args.min_steps)
+        )
+        result = train(longer, resume=True)
 
     rows = read_log(cfg.output_dir / "logs" / "train.jsonl")
     losses = [r["loss"] for r in rows if r.get("loss") is not None]
-    k = max(1, len(losses) // 10)
+    # first / last 10% of the logged rows, at least 3 each when there are 6 or more (one row is noise)
+    k = max(1, min(len(losses) // 2, max(3, len(losses) // 10)))
     vcfg = ValidationConfig(
         num_samples=args.val_samples,
         num_inference_steps=args.val_steps,
@@ -257,6 +271,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--config", type=Path, default=CONFIG)
     p.add_argument("--minutes", type=float, default=3.0, help="diffusion training wall time")
+    p.add_argument(
+        "--min-steps",
+        type=int,
+        default=150,
+        help="train on past --minutes until this many steps (slow CPUs; 0: the time limit only)",
+    )
     p.add_argument("--vae-seconds", type=float, default=60.0, help="autoencoder fitting time")
     p.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on 2 busy cores)"
