@@ -37,15 +37,15 @@ from collections.abc import Sequence
 
 # Only torch-free modules at import time: every argument is checked before torch, diffusers or a
 # model loads, so a refusal takes well under a second (issue 17); the rest is imported where used.
-from gaffer_diffusion.cli._common import (
-    _compat,
-    _latent_mode,
-    _object_fraction,
-    _runtime,
-    _sampling,
-)
-from gaffer_diffusion.cli._lighting import _envmap_lighting
-from gaffer_diffusion.cli._photo import _check_photo_flags
+# re-exported for tests and tools that import them from `gaffer_diffusion.cli` (the module this was);
+# not in `__all__`, so the API docs show `main` only, as before the split
+from gaffer_diffusion.cli._common import _compat as _compat
+from gaffer_diffusion.cli._common import _latent_mode as _latent_mode
+from gaffer_diffusion.cli._common import _object_fraction as _object_fraction
+from gaffer_diffusion.cli._common import _runtime as _runtime
+from gaffer_diffusion.cli._common import _sampling as _sampling
+from gaffer_diffusion.cli._lighting import _envmap_lighting as _envmap_lighting
+from gaffer_diffusion.cli._photo import _check_photo_flags as _check_photo_flags
 from gaffer_diffusion.cli.authors import _check, _prepare
 from gaffer_diffusion.cli.demo import _demo
 from gaffer_diffusion.cli.evaluate import _evaluate
@@ -54,26 +54,7 @@ from gaffer_diffusion.cli.relight import _relight
 from gaffer_diffusion.cli.train import _export, _init_random, _train
 from gaffer_envmap.errors import GafferError
 
-# `main`, and the helpers tests and tools import from `gaffer_diffusion.cli` (the module this was)
-__all__ = [
-    "_check",
-    "_check_photo_flags",
-    "_compat",
-    "_demo",
-    "_envmap_lighting",
-    "_evaluate",
-    "_export",
-    "_init_random",
-    "_latent_mode",
-    "_object_fraction",
-    "_parser",
-    "_prepare",
-    "_relight",
-    "_runtime",
-    "_sampling",
-    "_train",
-    "main",
-]
+__all__ = ["main"]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
