@@ -31,8 +31,9 @@ def _digests(folder: Path) -> dict[str, str]:
     }
 
 
-def _staged_files(parent: Path, name: str) -> list[Path]:
-    return [p for d in parent.glob(f".{name}.partial-*") for p in d.rglob("*") if p.is_file()]
+def _staged(folder: Path, pattern: str = ".partial-*") -> list[Path]:
+    """Files inside the hidden staging folders `folder/pattern` (what an interrupted run is writing)."""
+    return [p for d in folder.glob(pattern) for p in d.rglob("*") if p.is_file()]
 
 
 def _kill_once_staged(cmd: list[str], staged: Callable[[], list[Path]], log: Path) -> None:
@@ -59,10 +60,6 @@ def _kill_once_staged(cmd: list[str], staged: Callable[[], list[Path]], log: Pat
     assert proc.returncode == -signal.SIGKILL
 
 
-def _inner_staged(folder: Path) -> list[Path]:
-    return [p for d in folder.glob(".partial-*") for p in d.rglob("*") if p.is_file()]
-
-
 @pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
 def test_envmap_procedural_killed_mid_set_leaves_no_map_under_a_final_name(tmp_path: Path) -> None:
     pytest.importorskip("gaffer_envmap")
@@ -72,7 +69,7 @@ def test_envmap_procedural_killed_mid_set_leaves_no_map_under_a_final_name(tmp_p
     before = _digests(out)
     cmd = [sys.executable, "-m", "gaffer_envmap.cli", "procedural", "--out-dir", str(out)]
     cmd += ["--count", "400", "--height", "256"]
-    _kill_once_staged(cmd, lambda: _inner_staged(out), tmp_path / "stderr.txt")
+    _kill_once_staged(cmd, lambda: _staged(out), tmp_path / "stderr.txt")
     after = {k: v for k, v in _digests(out).items() if not k.startswith(".partial-")}
     assert after == before
 
@@ -87,7 +84,7 @@ def test_recipe_killed_while_building_objects_leaves_no_partial_set(tmp_path: Pa
     out = tmp_path / "rec"
     procedural = out / "objects" / "procedural"
     cmd = [sys.executable, "-m", "gaffer_data.cli", "recipe", str(out), "--procedural", "300"]
-    _kill_once_staged(cmd, lambda: _inner_staged(procedural), tmp_path / "stderr.txt")
+    _kill_once_staged(cmd, lambda: _staged(procedural), tmp_path / "stderr.txt")
     final = [p for p in procedural.iterdir() if not p.name.startswith(".partial-")]
     assert final == []
 
@@ -106,7 +103,7 @@ def test_demo_killed_mid_run_leaves_the_earlier_folder_untouched(tmp_path: Path)
     before = _digests(out)
     log = tmp_path / "stderr.txt"
     cmd = [sys.executable, "-m", "gaffer_diffusion.cli", "demo", "--out", str(out)]
-    _kill_once_staged(cmd, lambda: _staged_files(tmp_path, "demo"), log)
+    _kill_once_staged(cmd, lambda: _staged(tmp_path, ".demo.partial-*"), log)
     # the earlier folder: the same files, the same bytes, nothing new under the final names
     assert _digests(out) == before
     # what the kill can leave: only the hidden staging sibling

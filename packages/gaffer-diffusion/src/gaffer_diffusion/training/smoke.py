@@ -166,6 +166,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ckpt_dir = cfg.output_dir / "checkpoints"
     resume = ckpt_dir.is_dir() and any(ckpt_dir.glob("checkpoint-*"))
     result = train(cfg, resume=resume)
+    seconds = result.seconds
     if result.step < args.min_steps and result.checkpoint is not None:
         # a slow CPU (e.g. no native bf16: fp32, several times slower) gets too few steps in the time
         # limit for "the loss falls" to mean anything: go on, resume-exact, to `--min-steps`
@@ -179,6 +180,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             cfg, train=dataclasses.replace(cfg.train, max_time_s=None, max_steps=args.min_steps)
         )
         result = train(longer, resume=True)
+        seconds += result.seconds
 
     rows = read_log(cfg.output_dir / "logs" / "train.jsonl")
     losses = [r["loss"] for r in rows if r.get("loss") is not None]
@@ -243,7 +245,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "training": {
             "steps": result.step,
             "stop_reason": result.stop_reason,
-            "seconds": result.seconds,
+            "seconds": seconds,
             "batch_size": cfg.train.batch_size,
             "targets_per_sample": cfg.data.targets_per_sample,
             "loss_first_10pct": float(np.mean(losses[:k])) if losses else None,
