@@ -8,7 +8,7 @@
         --out RELIT [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
         [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
-        [--shared-noise]
+        [--shared-noise] [--object-fraction F|whole]
     gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
     gaffer-nerf evaluate FIELD --data DATA --target-lighting K [--split test] [--json F]
 
@@ -18,7 +18,8 @@ Without `--checkpoint`, `relight` uses gaffer-tiny, the 128 px model shipped wit
 (as `gaffer-diffusion relight` does), and says so. Every stage samples the model with its own
 suggested setting (gaffer-tiny: 1 step, guidance 1, mirror average, "default" encoding; the authors'
 release: the paper's 50 steps, guidance 3) unless `--steps`, `--guidance`, `--average-samples`,
-`--mirror-average` or `--compat` say otherwise.
+`--mirror-average` or `--compat` say otherwise, and sees each training view framed as it was trained
+(gaffer-tiny: an object-centred square in which the object spans 0.75) unless `--object-fraction` does.
 `--diffusion-preset tiny` uses a RANDOM tiny model: for smoke tests only, its relighting is noise.
 
 Every command checks its arguments first (files exist and parse, numbers in range, outputs writable;
@@ -167,6 +168,14 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="Stage 1: start every view from the same noise (30%% less flicker between the relit "
         "views, but 0.6 dB lower relit field on the sphere benchmark; default: per-view noise)",
+    )
+    r.add_argument(
+        "--object-fraction",
+        type=_fraction_or_whole,
+        default=None,
+        metavar="F|whole",
+        help="show the model object-centred square crops in which the object spans F of the side, "
+        "or 'whole' views (default: the model's framing, gaffer-tiny: 0.75)",
     )
     r.add_argument(
         "--compat",
@@ -361,6 +370,7 @@ def _relight_config(args: argparse.Namespace) -> Any:
         "average_samples": args.average_samples,
         "mirror_average": args.mirror_average,
         "compat": args.compat,
+        "object_fraction": args.object_fraction,
     }
     given = {k: v for k, v in overrides.items() if v is not None}
     if args.shared_noise:
@@ -478,7 +488,9 @@ def _relight(args: argparse.Namespace) -> int:
         f"step{'' if s.num_inference_steps == 1 else 's'}, guidance "
         f"{s.guidance_scale:g}, {s.average_samples} sample(s), mirror average "
         f"{'on' if s.mirror_average else 'off'}, {s.compat!r} encoding"
-        f"{', shared noise' if s.shared_noise else ''} ({whose})"
+        f"{', shared noise' if s.shared_noise else ''}, "
+        f"{'whole views' if s.crop_fraction is None else f'object-centred crops ({s.crop_fraction:g})'}"
+        f" ({whose})"
     )
     perceptual = load_perceptual_loss(args.lpips_backbone, device=device)
     res = relight_field(
@@ -512,8 +524,27 @@ def _relight(args: argparse.Namespace) -> int:
 def _sampling_overridden(args: argparse.Namespace) -> bool:
     return any(
         v is not None
-        for v in (args.steps, args.guidance, args.average_samples, args.mirror_average, args.compat)
+        for v in (
+            args.steps,
+            args.guidance,
+            args.average_samples,
+            args.mirror_average,
+            args.compat,
+            args.object_fraction,
+        )
     )
+
+
+def _fraction_or_whole(text: str) -> float | str:
+    """`--object-fraction`: "whole", or a number (checked by `DiffusionSamplingConfig`)."""
+    if text.strip().lower() == "whole":
+        return "whole"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is neither a fraction in (0, 1] (gaffer-tiny: 0.75) nor 'whole'"
+        ) from None
 
 
 def _render(args: argparse.Namespace) -> int:

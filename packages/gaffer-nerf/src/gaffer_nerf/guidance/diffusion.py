@@ -37,6 +37,7 @@ from gaffer_diffusion.models.model import vae_decode, vae_posterior
 from gaffer_envmap import EnvironmentMap
 from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, ModelSampling, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
+from gaffer_nerf.guidance.framing import ViewFraming, frame_views
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -81,11 +82,14 @@ class ViewConditions:
         encoded: the VAE latents of each input view and its maps, and the CLIP embeddings.
         mirrored: the same of every view flipped left-right under the lighting mirrored in camera x
             (`DiffusionSamplingConfig.mirror_average`), else None.
+        framing: the views' object-centred crop boxes (`DiffusionSamplingConfig.object_fraction`),
+            None: whole views resized to the model's resolution.
     """
 
     lighting: LightingMaps
     encoded: EncodedConditions
     mirrored: EncodedConditions | None = None
+    framing: ViewFraming | None = None
 
     @property
     def num_views(self) -> int:
@@ -165,6 +169,26 @@ class DiffusionGuide:
             images, size=(r, r), mode="bilinear", antialias=True, align_corners=False
         )
 
+    def framing(self, alpha: Float[Tensor, "V H W"] | None) -> ViewFraming | None:
+        """The views' crop boxes at the resolved `object_fraction` from their coverage `alpha`,
+        None when the model sees whole views (or no alpha is known)."""
+        fraction = self.sampling.crop_fraction
+        if fraction is None or alpha is None:
+            return None
+        return frame_views(alpha, fraction)
+
+    def model_views(
+        self,
+        images: Float[Tensor, "B 3 H W"],
+        views: list[int],
+        framing: ViewFraming | None,
+    ) -> Float[Tensor, "B 3 R R"]:
+        """Views `views` as the model sees them: their object-centred crops under `framing`, else
+        the whole views resized (`to_model_resolution`). Differentiable."""
+        if framing is None:
+            return self.to_model_resolution(images)
+        return framing.crop(images, views, self.resolution)
+
     def lighting(self, envmap: TargetLighting, w2c_blender: Float[Tensor, "V 3 4"]) -> LightingMaps:
         """Camera-frame LDR/HDR maps of `envmap` for every view (gaffer-envmap's `encode_lighting`)."""
         compat: CompatName = _resolved(self.sampling.compat, "compat")
@@ -187,16 +211,23 @@ class DiffusionGuide:
 
     @torch.no_grad()
     def encode_views(
-        self, images: Float[Tensor, "V 3 H W"], lighting: LightingMaps
+        self,
+        images: Float[Tensor, "V 3 H W"],
+        lighting: LightingMaps,
+        framing: ViewFraming | None = None,
     ) -> ViewConditions:
         """Encode the input views with the target lighting once (batched by `sampling.batch_size`).
 
-        With `mirror_average` the mirrored views are encoded too. With `latent_mode="sample"` view
-        i draws its posterior noise from `view_seed(i)` (the mirror from the same seed).
+        With `framing` (`DiffusionGuide.framing`) each view is cropped to its box first, and the
+        conditions keep the boxes for Stage 1 and 2. With `mirror_average` the mirrored views are
+        encoded too. With `latent_mode="sample"` view i draws its posterior noise from
+        `view_seed(i)` (the mirror from the same seed).
         """
         from gaffer_envmap.augment import mirror_camera_x
 
-        x = self.to_model_resolution(images).clamp(0, 1)
+        if framing is not None and framing.num_views != images.shape[0]:
+            raise ShapeError("framing", (framing.num_views,), f"[{images.shape[0]}] (one box per view)")
+        x = self.model_views(images, list(range(images.shape[0])), framing).clamp(0, 1)
         mode = self.sampling.latent_mode or "mode"
 
         def encode_all(x: Tensor, ldr: Tensor, hdr: Tensor) -> EncodedConditions:
@@ -219,7 +250,7 @@ class DiffusionGuide:
         if self.sampling.mirror_average:
             ldr, hdr = mirror_camera_x(lighting.ldr), mirror_camera_x(lighting.hdr)
             mirrored = encode_all(x.flip(-1), ldr, hdr)
-        return ViewConditions(lighting=lighting, encoded=enc, mirrored=mirrored)
+        return ViewConditions(lighting=lighting, encoded=enc, mirrored=mirrored, framing=framing)
 
     def view_seed(self, index: int) -> int:
         """The noise seed of view `index`: `sampling.seed` for all with `shared_noise`, else + index."""
@@ -240,7 +271,8 @@ class DiffusionGuide:
     def relight_views(
         self, conditions: ViewConditions, *, callback: ProgressCallback | None = None
     ) -> Float[Tensor, "V 3 R R"]:
-        """Stage 1's targets: every view relit from pure noise with the resolved sampling.
+        """Stage 1's targets: every view relit from pure noise with the resolved sampling, as the
+        model sees it (its crop under `conditions.framing`; `ViewFraming.paste` puts it back).
 
         View i uses seed `view_seed(i)` (its mirror the same): `sampling.seed + i`, or one seed for
         every view with `shared_noise` (more consistent targets, see `DiffusionSamplingConfig`);

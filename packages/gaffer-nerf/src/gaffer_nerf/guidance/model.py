@@ -37,6 +37,7 @@ def gaffer_tiny_sampling() -> ModelSampling:
         compat=compat,  # type: ignore[arg-type]
         # gaffer-diffusion relight: the posterior mode unless the encoding is the authors'
         latent_mode="sample" if compat == "neural-gaffer" else "mode",
+        object_fraction=pretrained.GAFFER_TINY_OBJECT_FRACTION,
         source="gaffer-tiny's model card (gaffer_diffusion.pretrained)",
     )
 
@@ -161,5 +162,6 @@ def folder_sampling(folder: Path, model: NeuralGafferModel) -> ModelSampling:
         mirror_average=own.mirror_average,
         compat=own.compat,
         latent_mode="sample" if own.compat == "neural-gaffer" else "mode",
+        object_fraction=None if own.object_fraction is None else float(own.object_fraction),
         source=own.source,
     )

@@ -74,7 +74,8 @@ class RelightResult:
 
     Attributes:
         field: the relit copy of the input field.
-        relit_views: `[V, 3, R, R]` diffusion-relit training views, or None without Stage 1.
+        relit_views: `[V, 3, R, R]` diffusion-relit training views as the model made them (their
+            object-centred crops when the model frames views), or None without Stage 1.
         report: timings and settings.
     """
 
@@ -133,11 +134,17 @@ def relight_field(
 
     t0 = time.perf_counter()
     images = train.rgb_srgb.permute(0, 3, 1, 2).contiguous()  # [V, 3, H, W] channels-first boundary
+    h, w = train.cameras.height, train.cameras.width
     lighting = guide.lighting(envmap, train.cameras.w2c_blender())
-    conditions = guide.encode_views(images, lighting)
+    # the model sees each view as it was trained to (object-centred crops for gaffer-tiny): boxes
+    # from the training alpha, else from the fitted field's opacity along the training rays
+    alpha = train.alpha
+    if alpha is None and guide.sampling.crop_fraction is not None:
+        alpha = (1.0 - cache.background).reshape(train.num_views, h, w).cpu()
+    framing = guide.framing(alpha)
+    conditions = guide.encode_views(images, lighting, framing)
     encode_s = time.perf_counter() - t0
 
-    h, w = train.cameras.height, train.cameras.width
     relit_s, s1 = 0.0, None
     if config.stage1 is not None:
         if relit_views is None:
@@ -149,7 +156,9 @@ def relight_field(
                 "relit_views", tuple(relit_views.shape), f"[{train.num_views}, 3, R, R]"
             )
         targets = relit_views.float()
-        if tuple(targets.shape[2:]) != (h, w):
+        if framing is not None:  # the relit crops back into the frames (white around them)
+            targets = framing.paste(targets, list(range(train.num_views)), images)
+        elif tuple(targets.shape[2:]) != (h, w):
             targets = F.interpolate(
                 targets, size=(h, w), mode="bilinear", antialias=True, align_corners=False
             )
