@@ -147,7 +147,7 @@ def run_relight(
     stage1_rows = []
     for iters in STAGE1_ITERS_QUICK if quick else STAGE1_ITERS:
         c = dataclasses.replace(cfg1, stage1=dataclasses.replace(cfg1.stage1, iterations=iters))
-        res1 = relight_field(field, train, env1, guide, c, perceptual, relit_views=oracle)
+        res1 = relight_field(field, train, env1, guide, c, perceptual, stage1_targets=oracle)
         rep, _ = evaluate_field(res1.field, test_target, perceptual=None)
         assert res1.report.stage1 is not None
         secs = res1.report.stage1.seconds

@@ -20,6 +20,9 @@ encoding) under
 - `full`: Stage 1 + Stage 2 with the guidance loss (the paper's method);
 - `sds-only`: Stage 2 with SDS on the input field, no Stage 1 (the paper's SDS baseline);
 - `sds-stage2`: Stage 1 + Stage 2 with SDS in place of the guidance loss;
+- `full-whole` (the framing ablation): `full` with the model shown whole views
+  (`DiffusionSamplingConfig(object_fraction="whole")`) instead of the object-centred crops it was
+  trained on (gaffer-tiny's own framing, 0.75, used by every other variant);
 - `stage1-oracle` (reference, not a method): Stage 1 fitted to the Cycles renders of the TRAINING
   views under the target lighting instead of gaffer-tiny's relit views: what Stage 1 could reach with
   a perfect 2D relighting at this field and budget.
@@ -75,12 +78,13 @@ STAGE1_ITERATIONS = 300
 STAGE2_ITERATIONS = 20
 QUICK = {"objects": 1, "targets": 1, "fit": 300, "stage1": 100, "stage2": 6}
 
-VARIANTS = ("unrelit", "stage1", "full", "sds-only", "sds-stage2", "stage1-oracle")
+VARIANTS = ("unrelit", "stage1", "full", "sds-only", "sds-stage2", "full-whole", "stage1-oracle")
 ABLATION_OF = {
     "stage1": "no-stage2",
     "full": "full",
     "sds-only": "sds-only",
     "sds-stage2": "sds-stage2",
+    "full-whole": "full",
     "stage1-oracle": "no-stage2",
 }
 LABELS = {
@@ -89,6 +93,7 @@ LABELS = {
     "full": "Stage 1 + 2 (full)",
     "sds-only": "SDS only",
     "sds-stage2": "Stage 1 + SDS",
+    "full-whole": "full, whole views (no framing)",
     "stage1-oracle": "Stage 1, oracle targets",
 }
 COLOURS = {
@@ -97,6 +102,7 @@ COLOURS = {
     "full": "tab:red",
     "sds-only": "tab:orange",
     "sds-stage2": "tab:purple",
+    "full-whole": "tab:brown",
     "stage1-oracle": "tab:green",
 }
 
@@ -265,6 +271,11 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
     load_s = time.perf_counter() - t0
     common.log(f"  model: {loaded.describe()}")
     common.log(f"  resolved sampling: {guide.sampling}")
+    guide_whole = DiffusionGuide(
+        guide.pipeline,
+        dataclasses.replace(rcfg.diffusion, object_fraction="whole"),
+        loaded.suggested,
+    )
 
     pairs: list[dict[str, Any]] = []
     fits: list[dict[str, Any]] = []
@@ -311,13 +322,22 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             relit_s = 0.0
             for variant in VARIANTS[1:]:
                 cfg = rcfg.with_ablation(ABLATION_OF[variant])  # type: ignore[arg-type]
-                views = relit_views
-                if variant == "stage1-oracle":
-                    views = gt_scene.train.rgb_srgb.permute(0, 3, 1, 2).contiguous()
+                views, oracle, g = relit_views, None, guide
+                if variant == "full-whole":  # its own relit views, from whole frames
+                    views, g = None, guide_whole
+                elif variant == "stage1-oracle":
+                    views, oracle = None, gt_scene.train.rgb_srgb.permute(0, 3, 1, 2).contiguous()
                 elif cfg.stage1 is None:
                     views = None
                 res = relight_field(
-                    fit.field, scene.train, env, guide, cfg, perceptual_loss, relit_views=views
+                    fit.field,
+                    scene.train,
+                    env,
+                    g,
+                    cfg,
+                    perceptual_loss,
+                    relit_views=views,
+                    stage1_targets=oracle,
                 )
                 r = res.report
                 if variant == "stage1":
@@ -326,7 +346,12 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                 phases = {
                     "cache": round(r.cache_seconds, 3),
                     "encode": round(r.encode_seconds, 3),
-                    "relit views": round(relit_s if uses_relit else 0.0, 3),
+                    "relit views": round(
+                        r.relight_views_seconds
+                        if variant == "full-whole"
+                        else (relit_s if uses_relit else 0.0),
+                        3,
+                    ),
                     "stage 1": round(r.stage1.seconds if r.stage1 else 0.0, 3),
                     "stage 2": round(r.stage2.seconds if r.stage2 else 0.0, 3),
                 }
@@ -388,6 +413,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                 "compat": s.compat,
                 "latent_mode": s.latent_mode,
                 "shared_noise": s.shared_noise,
+                "object_fraction": s.object_fraction,
                 "source": loaded.suggested.source,
             },
             "fit": (
@@ -451,7 +477,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
                 out["full"]["psnr_object_db"] - out[other]["psnr_object_db"], 3
             ),
         }
-        for other in ("unrelit", "sds-only", "stage1", "sds-stage2")
+        for other in ("unrelit", "sds-only", "stage1", "sds-stage2", "full-whole")
     }
     f, u, sds = out["full"], out["unrelit"], out["sds-only"]
     out["full_beats_unrelit_and_sds_on_mean_psnr"] = bool(

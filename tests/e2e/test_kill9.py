@@ -111,3 +111,52 @@ def test_demo_killed_mid_run_leaves_the_earlier_folder_untouched(tmp_path: Path)
         p.name.split("-")[0] for p in tmp_path.iterdir() if p.name not in ("demo", log.name)
     }
     assert leftovers <= {".demo.partial"}
+
+
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
+def test_relight_turntable_killed_while_writing_frames_leaves_the_earlier_ones(
+    tmp_path: Path,
+) -> None:
+    pytest.importorskip("gaffer_diffusion")
+    pytest.importorskip("torch")
+    from gaffer_diffusion.pretrained import example_dataset_path
+
+    image = sorted((example_dataset_path() / "objects").glob("*/lit/000_*.png"))[0]
+    out = tmp_path / "spin"
+    out.mkdir()
+    # an earlier turntable under the same prefix, and a file of the user's
+    for k in range(3):
+        (out / f"turn_{k:03d}.png").write_bytes(b"\x89PNG earlier frame %d" % k)
+    (out / "turn.gif").write_bytes(b"GIF89a earlier")
+    (out / "notes.txt").write_text("mine")
+    before = _digests(out)
+    cmd = [sys.executable, "-m", "gaffer_diffusion.cli", "relight", str(image), "--envmap", "city"]
+    cmd += ["--azimuth", "30", "--elevation", "10", "--out", str(out / "turn.png")]
+    cmd += ["--turntable", "240", "--output-size", "model"]
+    _kill_once_staged(cmd, lambda: _staged(out), tmp_path / "stderr.txt")
+    after = {k: v for k, v in _digests(out).items() if not k.startswith(".partial-")}
+    assert after == before
+
+
+@pytest.mark.skipif(not hasattr(os, "killpg"), reason="needs POSIX process groups")
+def test_nerf_orbit_killed_mid_render_leaves_the_earlier_orbit(tmp_path: Path) -> None:
+    pytest.importorskip("gaffer_nerf")
+    pytest.importorskip("torch")
+    from gaffer_nerf.cli import main
+    from gaffer_nerf.testing import write_sphere_scene
+
+    scene = write_sphere_scene(tmp_path / "scene", train_views=4, test_views=1, resolution=32)
+    field = tmp_path / "field"
+    fit = ["fit", str(scene.root), "--out", str(field), "--preset", "tiny", "--iterations", "20"]
+    assert main([*fit, "--device", "cpu", "--no-progress"]) == 0
+    out = tmp_path / "orbit"
+    out.mkdir()
+    for k in range(2):
+        (out / f"frame_{k:03d}.png").write_bytes(b"\x89PNG earlier frame %d" % k)
+    (out / "orbit.gif").write_bytes(b"GIF89a earlier")
+    before = _digests(out)
+    cmd = [sys.executable, "-m", "gaffer_nerf.cli", "render", str(field), "--data", str(scene.root)]
+    cmd += ["--orbit", "3000", "--out", str(out), "--device", "cpu", "--no-progress"]
+    _kill_once_staged(cmd, lambda: _staged(out), tmp_path / "stderr.txt")
+    after = {k: v for k, v in _digests(out).items() if not k.startswith(".partial-")}
+    assert after == before

@@ -87,7 +87,9 @@ def test_gaffer_tiny_frames_views_and_the_paper_model_does_not() -> None:
     assert DiffusionSamplingConfig().resolved(PAPER_SAMPLING).crop_fraction is None
     whole = DiffusionSamplingConfig(object_fraction="whole").resolved(gaffer_tiny_sampling())
     assert whole.crop_fraction is None
-    assert DiffusionSamplingConfig(object_fraction=0.5).resolved(PAPER_SAMPLING).crop_fraction == 0.5
+    assert (
+        DiffusionSamplingConfig(object_fraction=0.5).resolved(PAPER_SAMPLING).crop_fraction == 0.5
+    )
 
 
 def test_encoded_views_are_the_crops() -> None:

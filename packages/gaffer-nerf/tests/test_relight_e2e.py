@@ -105,3 +105,41 @@ def test_authors_schedule_and_perceptual_fallback(
     assert res.report.perceptual_name is None
     assert res.report.perceptual_unavailable_reason == "offline weights missing"
     assert res.report.stage2 is not None and res.report.stage2.t_star[0] > 0.38
+
+
+def test_framed_stage1_fits_the_relit_crops_pasted_into_the_frames(fitted, scene) -> None:
+    """With object-centred framing, Stage 1's targets are the model's crops put back in their boxes,
+    white outside; `stage1_targets` are frames used as they are; both at once are refused."""
+    from gaffer_nerf.configs import DiffusionSamplingConfig
+    from gaffer_nerf.errors import ConfigError
+
+    cfg = relight_preset("tiny", "no-stage2")
+    assert cfg.stage1 is not None
+    cfg = dataclasses.replace(
+        cfg,
+        stage1=dataclasses.replace(cfg.stage1, iterations=200),
+        diffusion=DiffusionSamplingConfig(object_fraction=0.75, num_inference_steps=2),
+    )
+    guide = _guide(cfg)
+    assert scene.train.alpha is not None
+    framing = guide.framing(scene.train.alpha)
+    assert framing is not None
+    crops = torch.full((8, 3, 64, 64), 0.2)  # a dark object where the model would put it
+    res = relight_field(
+        fitted.field, scene.train, scene.env_target, guide, cfg,
+        unavailable_perceptual("not requested"), relit_views=crops,
+    )  # fmt: skip
+    assert res.relit_views is crops
+    images = scene.train.rgb_srgb.permute(0, 3, 1, 2)
+    target = framing.paste(crops, list(range(8)), images)
+    cache = build_weight_cache(res.field, scene.train.cameras.rays([0]))
+    with torch.no_grad():
+        render = render_cached(res.field, cache, torch.arange(cache.num_rays))
+    err = float((render - target[0].permute(1, 2, 0).reshape(-1, 3)).abs().mean())
+    err_unpasted = float((render - 0.2).abs().mean())  # the crops read as whole frames
+    assert err < err_unpasted
+    with pytest.raises(ConfigError, match="not both"):
+        relight_field(
+            fitted.field, scene.train, scene.env_target, guide, cfg,
+            unavailable_perceptual("not requested"), relit_views=crops, stage1_targets=images,
+        )  # fmt: skip

@@ -439,11 +439,15 @@ class DiffusionSamplingConfig:
 
     def __post_init__(self) -> None:
         f = self.object_fraction
-        if f is not None and f != "whole" and not (
-            isinstance(f, int | float)
-            and not isinstance(f, bool)
-            and math.isfinite(f)
-            and 0.0 < f <= 1.0
+        if (
+            f is not None
+            and f != "whole"
+            and not (
+                isinstance(f, int | float)
+                and not isinstance(f, bool)
+                and math.isfinite(f)
+                and 0.0 < f <= 1.0
+            )
         ):
             raise ConfigError(
                 f"`object_fraction` (--object-fraction) is {f!r}; expected a fraction in (0, 1] "

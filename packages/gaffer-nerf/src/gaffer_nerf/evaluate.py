@@ -17,7 +17,7 @@ from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.metrics import MetricsReport, PerceptualMetric, evaluate_images
-from gaffer_envmap.atomic import atomic_write
+from gaffer_envmap.atomic import atomic_files
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ShapeError
@@ -116,16 +116,18 @@ def score_images(
 def write_images(
     images: Float[Tensor, "V 3 H W"], folder: str | Path, names: list[str]
 ) -> list[Path]:
-    """Write `[V, 3, H, W]` images in [0, 1] as 8-bit PNGs `folder/<name>.png` (atomic writes)."""
+    """Write `[V, 3, H, W]` images in [0, 1] as 8-bit PNGs `folder/<name>.png`, all or none.
+
+    The set is staged in a hidden folder inside `folder` and renamed into place at the end
+    (`gaffer_envmap.atomic.atomic_files`), so an interrupted run (even kill -9) leaves no part of a set
+    under the final names and an earlier run's files as they were (issue 17).
+    """
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for img, name in zip(images, names, strict=True):
-        arr = (img.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
-        path = folder / f"{name}.png"
-        atomic_write(path, lambda tmp, a=arr: Image.fromarray(a, "RGB").save(tmp))
-        paths.append(path)
-    return paths
+    with atomic_files(folder) as stage:
+        for img, name in zip(images, names, strict=True):
+            arr = (img.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
+            Image.fromarray(arr, "RGB").save(stage / f"{name}.png")
+    return [folder / f"{name}.png" for name in names]
 
 
 def read_images(paths: list[Path]) -> Float[Tensor, "V 3 H W"]:

@@ -3,9 +3,10 @@
 Issue 6 asks for "videos along an orbit" of the relit radiance field. `orbit_path` places cameras on a
 horizontal circle (world z up) whose radius, elevation and intrinsics follow a reference capture (its
 median camera distance and elevation about the centre), starting at the first reference camera's
-azimuth; `render_orbit` renders them and writes `frame_000.png`, ... and `orbit.gif` with atomic writes
-(`gaffer_envmap.atomic`), so an interrupted run never leaves a truncated file under a final name. GIF
-only (Pillow): an MP4 would need ffmpeg or PyAV, which gaffer-nerf does not depend on.
+azimuth; `render_orbit` renders them and writes `frame_000.png`, ... and `orbit.gif`, staged and
+renamed into place together (`gaffer_envmap.atomic.atomic_files`), so an interrupted run never leaves
+a truncated file, or part of an orbit, under a final name. GIF only (Pillow): an MP4 would need
+ffmpeg or PyAV, which gaffer-nerf does not depend on.
 """
 
 import math
@@ -21,7 +22,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from gaffer_envmap import orbit_w2c_blender
-from gaffer_envmap.atomic import atomic_write
+from gaffer_envmap.atomic import atomic_files, atomic_write
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.evaluate import render_views
@@ -134,17 +135,18 @@ def render_orbit(
     if not (math.isfinite(fps) and fps > 0):
         raise ConfigError(f"`fps` is {fps!r}; expected > 0.")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     paths: list[Path] = []
     frames: list[np.ndarray] = []
-    for k in tqdm(range(cameras.num_views), disable=not progress, desc="orbit", leave=False):
-        frame = _to_uint8(render_views(field, cameras.select([k]))[0])  # [H, W, 3]
-        path = out / f"frame_{k:03d}.png"
-        atomic_write(path, lambda tmp, f=frame: Image.fromarray(f, "RGB").save(tmp))
-        paths.append(path)
-        frames.append(frame)
-    gif = write_gif(frames, out / GIF_NAME, fps=fps)
-    return OrbitVideo(frames=tuple(paths), gif=gif, fps=fps)
+    # the frames and the GIF are staged and renamed into place together: all or none (issue 17)
+    with atomic_files(out) as stage:
+        for k in tqdm(range(cameras.num_views), disable=not progress, desc="orbit", leave=False):
+            frame = _to_uint8(render_views(field, cameras.select([k]))[0])  # [H, W, 3]
+            name = f"frame_{k:03d}.png"
+            Image.fromarray(frame, "RGB").save(stage / name)
+            paths.append(out / name)
+            frames.append(frame)
+        write_gif(frames, stage / GIF_NAME, fps=fps)
+    return OrbitVideo(frames=tuple(paths), gif=out / GIF_NAME, fps=fps)
 
 
 def write_gif(frames: Sequence[np.ndarray], path: str | Path, *, fps: float = 12.0) -> Path:

@@ -226,7 +226,9 @@ class DiffusionGuide:
         from gaffer_envmap.augment import mirror_camera_x
 
         if framing is not None and framing.num_views != images.shape[0]:
-            raise ShapeError("framing", (framing.num_views,), f"[{images.shape[0]}] (one box per view)")
+            raise ShapeError(
+                "framing", (framing.num_views,), f"[{images.shape[0]}] (one box per view)"
+            )
         x = self.model_views(images, list(range(images.shape[0])), framing).clamp(0, 1)
         mode = self.sampling.latent_mode or "mode"
 

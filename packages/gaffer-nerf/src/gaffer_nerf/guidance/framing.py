@@ -55,7 +55,9 @@ class ViewFraming:
         reach the field through it.
         """
         if images.ndim != 4 or tuple(images.shape[2:]) != self.image_size:
-            raise ShapeError("images", tuple(images.shape), f"[B, 3, {self.image_size[0]}, {self.image_size[1]}]")
+            raise ShapeError(
+                "images", tuple(images.shape), f"[B, 3, {self.image_size[0]}, {self.image_size[1]}]"
+            )
         if len(views) != images.shape[0]:
             raise ShapeError("views", (len(views),), f"[{images.shape[0]}] (one index per image)")
         out = []
@@ -77,7 +79,11 @@ class ViewFraming:
     ) -> Float[Tensor, "B 3 H W"]:
         """`crops` resized back to their boxes and laid over `background` (kept outside the boxes)."""
         if tuple(background.shape[2:]) != self.image_size:
-            raise ShapeError("background", tuple(background.shape), f"[B, 3, {self.image_size[0]}, {self.image_size[1]}]")
+            raise ShapeError(
+                "background",
+                tuple(background.shape),
+                f"[B, 3, {self.image_size[0]}, {self.image_size[1]}]",
+            )
         out = background.clone()
         h, w = self.image_size
         for i, v in enumerate(views):
@@ -118,9 +124,7 @@ def frame_views(alpha: Float[Tensor, "V H W"], object_fraction: float) -> ViewFr
     side = max(h, w)
     whole: Box = ((h - side) // 2, (w - side) // 2, side)
     boxes = tuple(
-        object_square(alpha_np[i], float(object_fraction))
-        if covered[i].any()
-        else whole
+        object_square(alpha_np[i], float(object_fraction)) if covered[i].any() else whole
         for i in range(v)
     )
     return ViewFraming(boxes=boxes, image_size=(h, w), object_fraction=float(object_fraction))

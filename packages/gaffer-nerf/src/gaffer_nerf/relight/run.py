@@ -21,7 +21,7 @@ from torch import Tensor
 
 from gaffer_nerf.configs import DiffusionSamplingConfig, RelightConfig
 from gaffer_nerf.data.transforms import ViewSet
-from gaffer_nerf.errors import ShapeError
+from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.fields.tensorf import TensoRFVM
 from gaffer_nerf.guidance.diffusion import DiffusionGuide, TargetLighting
 from gaffer_nerf.guidance.perceptual import PerceptualLoss
@@ -93,6 +93,7 @@ def relight_field(
     perceptual: PerceptualLoss,
     *,
     relit_views: Float[Tensor, "V 3 R R"] | None = None,
+    stage1_targets: Float[Tensor, "V 3 H W"] | None = None,
     progress: bool = False,
 ) -> RelightResult:
     """Relight a fitted field under `envmap` with the diffusion prior.
@@ -106,15 +107,29 @@ def relight_field(
             against the model's suggestion; `config.diffusion` is not read here).
         config: stages, ablation, seeds.
         perceptual: Stage 2's perceptual term (`load_perceptual_loss()`; may be unavailable).
-        relit_views: Stage 1 targets from an earlier run (same views, lighting and model) to reuse.
+        relit_views: Stage 1 targets from an earlier run (same views, lighting and model) to reuse,
+            as the model made them (`RelightResult.relit_views`: crops when the model frames views).
+        stage1_targets: Stage 1 targets in the training views' own frames, fitted as they are
+            (e.g. renders under the target lighting: an oracle); excludes `relit_views`.
         progress: show progress bars.
 
     Returns:
         `RelightResult`.
 
     Raises:
-        ShapeError: when `relit_views` does not match the training views.
+        ShapeError: when `relit_views` or `stage1_targets` does not match the training views.
+        ConfigError: when both `relit_views` and `stage1_targets` are given.
     """
+    h, w = train.cameras.height, train.cameras.width
+    if stage1_targets is not None:
+        if relit_views is not None:
+            raise ConfigError(
+                "Pass `relit_views` (model crops) or `stage1_targets` (frames), not both."
+            )
+        if tuple(stage1_targets.shape) != (train.num_views, 3, h, w):
+            raise ShapeError(
+                "stage1_targets", tuple(stage1_targets.shape), f"[{train.num_views}, 3, {h}, {w}]"
+            )
     t_all = time.perf_counter()
     gen = torch.Generator().manual_seed(config.seed)
     out = copy.deepcopy(field)
@@ -134,7 +149,6 @@ def relight_field(
 
     t0 = time.perf_counter()
     images = train.rgb_srgb.permute(0, 3, 1, 2).contiguous()  # [V, 3, H, W] channels-first boundary
-    h, w = train.cameras.height, train.cameras.width
     lighting = guide.lighting(envmap, train.cameras.w2c_blender())
     # the model sees each view as it was trained to (object-centred crops for gaffer-tiny): boxes
     # from the training alpha, else from the fitted field's opacity along the training rays
@@ -146,7 +160,10 @@ def relight_field(
     encode_s = time.perf_counter() - t0
 
     relit_s, s1 = 0.0, None
-    if config.stage1 is not None:
+    if config.stage1 is not None and stage1_targets is not None:
+        targets_rgb = stage1_targets.float().permute(0, 2, 3, 1).reshape(-1, 3)
+        s1 = run_stage1(out, cache, targets_rgb, config.stage1, generator=gen, progress=progress)
+    elif config.stage1 is not None:
         if relit_views is None:
             t0 = time.perf_counter()
             relit_views = guide.relight_views(conditions)

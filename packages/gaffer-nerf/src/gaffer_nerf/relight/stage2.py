@@ -75,7 +75,9 @@ def run_stage2(
         v = int(torch.randint(0, views, (1,), generator=generator))
         ids = torch.arange(v * hw, (v + 1) * hw, device=device)
         render = render_cached(field, cache, ids).T.reshape(1, 3, h, w)  # [1, 3, H, W]
-        x = guide.model_views(render, [v], conditions.framing)  # [1, 3, R, R], cropped as the inputs
+        x = guide.model_views(
+            render, [v], conditions.framing
+        )  # [1, 3, R, R], cropped as the inputs
         enc = conditions.encoded.select([v])
         mirrored = None if conditions.mirrored is None else conditions.mirrored.select([v])
         match config.loss:
