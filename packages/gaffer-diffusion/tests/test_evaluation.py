@@ -46,32 +46,29 @@ def write_tiny_dataset(
 ) -> Path:
     """A gaffer-data dataset with one object, `views` views x 3 lightings of flat-shaded PNGs.
 
-    Written through gaffer-data's schema and manifest writer (no Blender): the images are a disc whose
-    colour is the map's colour, so lighting changes are visible and the reader sees a complete object.
+    Written by gaffer-data's own fake-dataset writer (`gaffer_data.testing.write_fake_object`, no
+    Blender): the images are a disc whose colour is the map's colour, so lighting changes are visible
+    and the reader sees a complete object.
     """
-    from gaffer_data.dataset import sha256_file
-    from gaffer_data.dataset.manifest import object_manifest_json
-    from gaffer_data.dataset.schema import (
+    from gaffer_data.dataset import (
         CameraSample,
         EnvmapRef,
-        FileRecord,
         Intrinsics,
         LitImage,
-        Normalization,
         ObjectPlan,
         ViewRecord,
+        sha256_file,
     )
-    from gaffer_data.testing import tiny_config
+    from gaffer_data.testing import tiny_config, write_fake_object
     from gaffer_envmap.poses import orbit_w2c_blender
 
     config = tiny_config(views=views, lightings=3, resolution=RES)
     obj = root / "objects" / "disc"
-    (obj / "lit").mkdir(parents=True)
-    (obj / "alpha").mkdir()
     yy, xx = np.mgrid[:RES, :RES]
     alpha = (((yy - RES / 2) ** 2 + (xx - RES / 2) ** 2) < (RES / 3) ** 2).astype(np.uint8) * 255
     names = list(envmaps)
-    view_records, w2c, files = [], [], []
+    view_records, w2c = [], []
+    pngs: dict[str, np.ndarray] = {}
     for v in range(views):
         az, el = 40.0 * v, 15.0
         w2c.append(orbit_w2c_blender(az, el, 2.0).matrix)
@@ -92,9 +89,9 @@ def write_tiny_dataset(
             rgba[..., :3] = (np.array([60, 120, 200]) + 40 * li + 10 * v) % 256
             rgba[..., 3] = alpha
             png = f"lit/{v:03d}_{li:03d}.png"
-            Image.fromarray(rgba).save(obj / png)
+            pngs[png] = rgba
             lit.append(LitImage(lighting_index=li, envmap=ref, exr=png, png=png))
-        Image.fromarray(alpha).save(obj / f"alpha/{v:03d}.png")
+        pngs[f"alpha/{v:03d}.png"] = alpha
         cam = CameraSample(elevation_deg=el, azimuth_deg=az, distance=2.0, position=(0.0, 0.0, 0.0))
         view_records.append(
             ViewRecord(index=v, camera=cam, lit=tuple(lit), area=None, alpha=f"alpha/{v:03d}.png")
@@ -102,23 +99,6 @@ def write_tiny_dataset(
     w2c_arr = np.stack(w2c)
     c2w_cv = np.stack([np.linalg.inv(np.vstack([m, [0, 0, 0, 1]])) for m in w2c_arr])
     c2w_cv = c2w_cv @ np.diag([1.0, -1.0, -1.0, 1.0])
-    k = np.array([[35.0, 0, RES / 2], [0, 35.0, RES / 2], [0, 0, 1]])
-    with open(obj / "cameras.npz", "wb") as fh:
-        np.savez(fh, w2c_blender=w2c_arr, c2w_opencv=c2w_cv, intrinsics=k)
-    for p in sorted(obj.rglob("*")):
-        if p.is_file():
-            rel = p.relative_to(obj).as_posix()
-            kind = "cameras" if rel.endswith(".npz") else "alpha" if "alpha" in rel else "lit_png"
-            files.append(
-                FileRecord(
-                    path=rel,
-                    sha256=sha256_file(p),
-                    kind=kind,
-                    dtype="npz" if kind == "cameras" else "uint8",
-                    shape=(),
-                    color_space="data" if kind != "lit_png" else "srgb",
-                )
-            )
     plan = ObjectPlan(
         object_id="disc",
         source="disc.obj",
@@ -126,13 +106,14 @@ def write_tiny_dataset(
         intrinsics=Intrinsics(width=RES, height=RES, fx=35.0, fy=35.0, cx=RES / 2, cy=RES / 2),
         config=config,
     )
-    body = object_manifest_json(
+    write_fake_object(
+        obj,
         plan,
-        source_sha256="0" * 64,
-        normalization=Normalization(scale=1.0, center=(0.0, 0.0, 0.0)),
-        files=files,
+        pngs=pngs,
+        w2c_blender=w2c_arr,
+        c2w_opencv=c2w_cv,
+        intrinsics=np.array([[35.0, 0, RES / 2], [0, 35.0, RES / 2], [0, 0, 1]]),
     )
-    (obj / "manifest.json").write_text(json.dumps(body))
     return root
 
 
