@@ -50,7 +50,7 @@ def _read_example(
     from gaffer_envmap.bundled import bundled_hdris
 
     _require_gaffer_data()
-    from gaffer_data.errors import GafferDataError
+    from gaffer_data import GafferDataError
 
     if not (root / "objects").is_dir():
         raise DatasetError(
