@@ -37,6 +37,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
@@ -179,7 +180,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--compat",
-        choices=("neural-gaffer", "default"),
+        choices=COMPAT_MODES,
         default=None,
         help="lighting encoding (default: the model's own; 'neural-gaffer' for the released "
         "checkpoint, 'default' for gaffer-tiny)",

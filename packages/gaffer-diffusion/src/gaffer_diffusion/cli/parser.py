@@ -19,6 +19,7 @@ from gaffer_diffusion._choices import (
     PrepareCompat,
 )
 from gaffer_diffusion.app.config import add_app_arguments
+from gaffer_envmap.compat_mode import COMPAT_MODES
 
 _DESCRIPTION = "Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`."
 """The first paragraph of `gaffer_diffusion.cli`'s docstring, shown atop `--help`."""
@@ -90,7 +91,7 @@ def _parser() -> argparse.ArgumentParser:
     light.add_argument("--hdr", type=Path, help="pre-encoded camera-frame HDR map (PNG)")
     light.add_argument(
         "--compat",
-        choices=("neural-gaffer", "default"),
+        choices=COMPAT_MODES,
         default=None,
         help="lighting encoding; 'neural-gaffer' matches the released checkpoint (the default with "
         "--checkpoint); without one, gaffer-tiny's own ('default')",
@@ -155,7 +156,7 @@ def _parser() -> argparse.ArgumentParser:
     ds.add_argument("--save-predictions", type=Path, help="write every prediction PNG here")
     ds.add_argument(
         "--compat",
-        choices=("neural-gaffer", "default"),
+        choices=COMPAT_MODES,
         default=None,
         help="lighting encoding (default: 'neural-gaffer' for a --checkpoint, gaffer-tiny's own "
         "'default' without one)",
@@ -243,7 +244,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     d.add_argument(
         "--compat",
-        choices=("neural-gaffer", "default"),
+        choices=COMPAT_MODES,
         default=None,
         help="lighting encoding (default: the model's own; gaffer-tiny: 'default')",
     )
