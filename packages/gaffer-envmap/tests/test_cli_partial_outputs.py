@@ -105,3 +105,63 @@ def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> No
     proc.wait()
     assert staged >= 3
     assert list(out.glob("*.exr")) == []  # only the hidden staging folder may remain
+
+
+@pytest.mark.parametrize("exc", [OSError(28, "No space left on device"), KeyboardInterrupt()])
+def test_encode_failing_on_the_second_png_keeps_both_earlier_pngs(
+    sky: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, exc: BaseException
+) -> None:
+    # issue 17: `encode` replaced ldr.png, then failed on hdr.png; now both are written or neither
+    np.save(tmp_path / "w2c.npy", np.concatenate([np.eye(3), [[0.0], [0.0], [-2.0]]], axis=1))
+    out = tmp_path / "enc"
+    out.mkdir()
+    (out / "ldr.png").write_bytes(b"old ldr")
+    (out / "hdr.png").write_bytes(b"old hdr")
+    real, calls = cli.write_png, {"n": 0}
+
+    def write_png(path, *a, **k):
+        calls["n"] += 1
+        if calls["n"] > 1:
+            raise exc
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(cli, "write_png", write_png)
+    argv = ["encode", str(sky), "--w2c", str(tmp_path / "w2c.npy"), "--out-dir", str(out)]
+    assert main([*argv, "--size", "16"]) in (2, 130)
+    assert calls["n"] == 2
+    assert (out / "ldr.png").read_bytes() == b"old ldr"
+    assert (out / "hdr.png").read_bytes() == b"old hdr"
+    assert sorted(p.name for p in out.iterdir()) == ["hdr.png", "ldr.png"]  # no staging left
+
+
+def test_encode_into_a_new_folder_failing_leaves_no_folder(
+    sky: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    np.save(tmp_path / "w2c.npy", np.concatenate([np.eye(3), [[0.0], [0.0], [-2.0]]], axis=1))
+    real, calls = cli.write_png, {"n": 0}
+
+    def write_png(path, *a, **k):
+        calls["n"] += 1
+        if calls["n"] > 1:
+            raise OSError(28, "No space left on device")
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(cli, "write_png", write_png)
+    out = tmp_path / "new"
+    argv = ["encode", str(sky), "--w2c", str(tmp_path / "w2c.npy"), "--out-dir", str(out)]
+    assert main([*argv, "--size", "16"]) == 2
+    assert not out.exists()
+
+
+def test_a_refusal_comes_before_torch_is_imported(tmp_path: Path) -> None:
+    # issue 17 item 2: the CLI imports the torch-backed rotate/encode only once the inputs are good
+    code = (
+        "import sys; from gaffer_envmap.cli import main; "
+        "rc = main(['rotate', 'missing.exr', 'o.exr', '--w2c', 'missing.npy']); "
+        "print(rc, 'torch' in sys.modules)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, check=False
+    )
+    assert done.stdout.split() == ["2", "False"], done.stdout + done.stderr
+    assert list(tmp_path.iterdir()) == []

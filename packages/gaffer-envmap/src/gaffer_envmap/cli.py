@@ -16,11 +16,9 @@ import numpy as np
 from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
 from gaffer_envmap.compat_mode import COMPAT_MODES
-from gaffer_envmap.encode import encode_lighting
 from gaffer_envmap.errors import GafferEnvmapError
 from gaffer_envmap.io import read_envmap, write_envmap, write_png
 from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
-from gaffer_envmap.rotate import rotate_to_camera
 from gaffer_envmap.stats import describe, total_power
 
 
@@ -98,6 +96,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
 def _cmd_rotate(args: argparse.Namespace) -> int:
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
+    from gaffer_envmap.rotate import rotate_to_camera  # torch: only once the inputs are good
+
     out = rotate_to_camera(
         env,
         pose,
@@ -116,14 +116,17 @@ def _cmd_rotate(args: argparse.Namespace) -> int:
 def _cmd_encode(args: argparse.Namespace) -> int:
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
+    from gaffer_envmap.encode import encode_lighting  # torch: only once the inputs are good
+
     enc = encode_lighting(
         env, pose, size=args.size, compat=args.compat, spin_deg=args.spin, quantize=True
     )
     ldr, hdr = enc.to_uint8()
     out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    write_png(out / "ldr.png", ldr[0])
-    write_png(out / "hdr.png", hdr[0])
+    # both PNGs or neither: never a new ldr.png beside an old hdr.png (issue 17)
+    with atomic_files(out) as stage:
+        write_png(stage / "ldr.png", ldr[0])
+        write_png(stage / "hdr.png", hdr[0])
     print(
         f"wrote {out / 'ldr.png'} and {out / 'hdr.png'} ({args.size}x{args.size}, compat={args.compat})"
     )
@@ -166,7 +169,9 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     import time
 
     from gaffer_envmap.bundled import read_bundled_hdri
+    from gaffer_envmap.encode import encode_lighting
     from gaffer_envmap.preview import contact_sheet, tonemap_preview
+    from gaffer_envmap.rotate import rotate_to_camera
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
