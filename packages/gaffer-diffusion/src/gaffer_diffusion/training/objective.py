@@ -1,0 +1,205 @@
+"""The training objective of one micro-batch (official implementation §3, steps 2-5 of `loop`).
+
+`TrainingObjective.loss` takes a micro-batch to its loss: lighting maps rotated and encoded (or the
+authors' pre-encoded ones), optional mirroring, one VAE call for inputs, maps and targets, CLIP of the
+inputs, the forward process at a random timestep, CFG dropout, and the UNet's regression loss.
+Randomness comes only from the generator it is given (`step_generator`).
+"""
+
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion.conditioning import clip_preprocess
+from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.hints import hints_at
+from gaffer_diffusion.models.build import build_scheduler
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.training.config import TrainConfig
+from gaffer_diffusion.training.dataset import TrainBatch, batch_lighting_of
+
+
+def step_generator(seed: int, step: int, rank: int, micro: int) -> torch.Generator:
+    """The generator of one micro-step: a function of (seed, step, process, micro-step) only."""
+    state = np.random.SeedSequence([seed, step, rank, micro]).generate_state(2, dtype=np.uint64)
+    return torch.Generator().manual_seed(int(state[0]) & 0x7FFF_FFFF_FFFF_FFFF)
+
+
+def cfg_dropout_masks(r: torch.Tensor, p: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The paper's CFG dropout from one uniform draw per item (official implementation §2).
+
+    Returns:
+        `(drop_clip, drop_latents)` bool `[N]`: r < 2p drops the CLIP embedding, p <= r < 3p drops the
+        three conditioning latents (so 5% / 5% / 5% CLIP only / both / latents only for p = 0.05).
+
+    Example:
+        >>> c, l = cfg_dropout_masks(torch.tensor([0.01, 0.07, 0.12, 0.5]), 0.05)
+        >>> c.tolist(), l.tolist()
+        ([True, True, False, False], [False, True, True, False])
+    """
+    return r < 2 * p, (r >= p) & (r < 3 * p)
+
+
+class TrainingObjective:
+    """The loss of one micro-batch, with what it needs from the model (schedule, frozen-network dtype)."""
+
+    def __init__(self, config: TrainConfig, accelerator: Any, model: NeuralGafferModel) -> None:
+        self.cfg = config
+        self.acc = accelerator
+        self.model = model
+        self.device = accelerator.device
+        self.scheduler = build_scheduler(model.config.scheduler)
+        n_train = int(self.scheduler.config["num_train_timesteps"])
+        if config.train.timestep_range[1] >= n_train:
+            raise ConfigError(
+                f"`train.timestep_range` is {list(config.train.timestep_range)}; the model's schedule "
+                f"has {n_train} timesteps, so hi must be <= {n_train - 1}."
+            )
+        if config.train.residual_loss_floor is not None and not model.config.residual:
+            raise ConfigError(
+                "`train.residual_loss_floor` is set but the model diffuses the target itself "
+                "(`ModelConfig.residual` false); remove it, or train a residual model."
+            )
+        self.alphas_cumprod = self.scheduler.alphas_cumprod.to(self.device)
+        cuda = self.device.type == "cuda"
+        mp = config.train.mixed_precision
+        # frozen networks in half precision only on GPUs (CPU half kernels are slow or missing)
+        self.weight_dtype = (
+            {
+                "fp16": torch.float16,
+                "bf16": torch.bfloat16,
+                "no": torch.float32,
+            }[mp]
+            if cuda
+            else torch.float32
+        )
+
+    # ---------------------------------------------------------------- one micro-step
+    def loss(self, unet: torch.nn.Module, batch: TrainBatch, gen: torch.Generator) -> torch.Tensor:
+        """The MSE of one micro-batch against the scheduler's `prediction_type` target (epsilon by
+        default; see the module docstring and `_prediction_target`)."""
+        cfg, dev, m = self.cfg, self.device, self.model
+        b, t = batch.batch_size, batch.targets_per_sample
+        n = b * t
+        res = m.config.resolution
+        inputs = batch.input_images.to(dev, non_blocking=True)  # [B, 3, H, W]
+        targets = batch.target_images.to(dev, non_blocking=True).flatten(0, 1)  # [BT, 3, H, W]
+        # environment maps rotated + encoded here; the authors' pre-encoded maps used as they are
+        ldr, hdr = batch_lighting_of(
+            batch, size=res, compat=cfg.data.lighting_compat, device=dev
+        )  # [BT, 3, H, W] each, camera frame, in [0, 1]
+        alphas = None
+        if m.config.hints:
+            if batch.input_alphas is None:
+                raise ConfigError(
+                    "the model takes radiance hints (`ModelConfig.hints`), which need each input's "
+                    "object mask, but this dataset's items have no alpha; train on gaffer-data renders."
+                )
+            alphas = batch.input_alphas.to(dev, non_blocking=True)  # [B, 1, H, W]
+        if cfg.data.mirror_prob > 0:
+            inputs, targets, ldr, hdr, alphas = _mirror_views(
+                inputs, targets, ldr, hdr, t, cfg.data.mirror_prob, gen, alphas
+            )
+        with torch.no_grad():
+            # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
+            stacked = torch.cat([inputs, hdr, ldr, targets]) * 2.0 - 1.0
+            posterior = vae_posterior(m.vae, stacked.to(self.weight_dtype))
+            sampled = posterior.sample(generator=gen).float()
+            cond_all = posterior.mode().float() if cfg.train.cond_latent_mode == "mode" else sampled
+            image_lat = cond_all[:b].repeat_interleave(t, dim=0)  # [BT, 4, h, w] raw latents
+            hdr_lat = cond_all[b : b + n]
+            ldr_lat = cond_all[b + n : b + 2 * n]
+            # only the target latent is scaled (official implementation §1); residual models
+            # diffuse target - input (`ModelConfig.residual`)
+            z0 = m.diffusion_target(sampled[b + 2 * n :], image_lat)  # [BT, 4, h, w]
+            pixels = clip_preprocess(
+                inputs.to(self.weight_dtype) * 2.0 - 1.0, m.config.image_encoder.image_size
+            )
+            clip = (
+                m.image_encoder(pixel_values=pixels).image_embeds.float().unsqueeze(1)
+            )  # [B, 1, D]
+            clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
+            parts = [image_lat, hdr_lat, ldr_lat]
+            if alphas is not None:  # radiance hints of the (possibly mirrored) inputs' masks
+                mask = alphas.repeat_interleave(t, dim=0)
+                parts.append(hints_at(mask, ldr, hdr, int(image_lat.shape[-1])))
+        cond = torch.cat(parts, dim=1)  # [BT, 12 (+12 hints), h, w]
+        noise = torch.randn(z0.shape, generator=gen).to(dev)
+        lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up
+        timesteps = torch.randint(lo, hi + 1, (n,), generator=gen).to(dev)
+        r = torch.rand(n, generator=gen).to(dev)
+        drop_clip, drop_lat = cfg_dropout_masks(r, cfg.train.cfg_dropout_p)
+        clip = clip * (~drop_clip).to(clip.dtype).view(n, 1, 1)
+        cond = cond * (~drop_lat).to(cond.dtype).view(n, 1, 1, 1)
+        abar = self.alphas_cumprod[timesteps].float().view(n, 1, 1, 1)
+        z_t = abar.sqrt() * z0 + (1.0 - abar).sqrt() * noise  # forward process q(z_t | z_0)
+        with self.acc.autocast():
+            # [BT, 16 (+12), h, w]  z_t + 3x4 conditioning latents (+ hints)
+            pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
+        target = _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
+        return diffusion_loss(pred.float(), target, z0, cfg.train.residual_loss_floor)
+
+
+def _mirror_views(
+    inputs: Float[Tensor, "B 3 H W"],
+    targets: Float[Tensor, "BT 3 H W"],
+    ldr: Float[Tensor, "BT 3 H W"],
+    hdr: Float[Tensor, "BT 3 H W"],
+    targets_per_view: int,
+    prob: float,
+    gen: torch.Generator,
+    alphas: Float[Tensor, "B 1 H W"] | None = None,
+) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
+    """Flip each view left-right with probability `prob`: its input (and mask), its targets and,
+    mirrored in camera x, their lighting maps (`DataConfig.mirror_prob`)."""
+    from gaffer_envmap.augment import mirror_camera_x
+
+    b = inputs.shape[0]
+    flip_view = (torch.rand(b, generator=gen) < prob).to(inputs.device)  # [B]
+    flip_target = flip_view.repeat_interleave(targets_per_view).view(-1, 1, 1, 1)  # [BT,1,1,1]
+    return (
+        torch.where(flip_view.view(b, 1, 1, 1), inputs.flip(-1), inputs),
+        torch.where(flip_target, targets.flip(-1), targets),
+        torch.where(flip_target, mirror_camera_x(ldr), ldr),
+        torch.where(flip_target, mirror_camera_x(hdr), hdr),
+        None
+        if alphas is None
+        else torch.where(flip_view.view(b, 1, 1, 1), alphas.flip(-1), alphas),
+    )
+
+
+def diffusion_loss(
+    pred: Float[Tensor, "n c h w"],
+    target: Float[Tensor, "n c h w"],
+    z0: Float[Tensor, "n c h w"],
+    residual_loss_floor: float | None,
+) -> Tensor:
+    """MSE of the UNet output; with a floor c, item i weighs 1 / (mean(z0_i^2) + c), normalised
+    to mean 1 (`TrainLoopConfig.residual_loss_floor`)."""
+    if residual_loss_floor is None:
+        return F.mse_loss(pred, target)
+    weight = 1.0 / (z0.float().pow(2).mean(dim=(1, 2, 3)) + residual_loss_floor)  # [n]
+    per_item = (pred - target).pow(2).mean(dim=(1, 2, 3))
+    return (per_item * weight / weight.mean()).mean()
+
+
+def _prediction_target(
+    prediction_type: str, z0: torch.Tensor, noise: torch.Tensor, abar: torch.Tensor
+) -> torch.Tensor:
+    """What the UNet regresses: the noise ("epsilon", the paper's), the velocity
+    `sqrt(abar) noise - sqrt(1 - abar) z0` ("v_prediction") or the clean latent ("sample")."""
+    match prediction_type:
+        case "epsilon":
+            return noise
+        case "v_prediction":
+            return abar.sqrt() * noise - (1.0 - abar).sqrt() * z0
+        case "sample":
+            return z0
+    raise ConfigError(
+        f"`scheduler.prediction_type` is {prediction_type!r}; expected 'epsilon', 'v_prediction' "
+        "or 'sample'."
+    )
