@@ -116,3 +116,23 @@ def test_condition_validation_errors() -> None:
 def test_wrong_resolution_raises(model) -> None:
     with pytest.raises(ShapeError, match="resolution"):
         encode_conditions(model, random_conditions(1, resolution=32))
+
+
+def test_lighting_uses_the_filter_the_model_was_trained_with() -> None:
+    """gaffer-envmap's default rotation filter became the power-exact "conservative" one (issue 18);
+    gaffer-tiny was trained on "area" maps, so every sampling path must keep asking for "area"
+    (`LIGHTING_FILTER`) rather than follow the library default. A sub-pixel sun tells the two apart."""
+    import numpy as np
+
+    from gaffer_diffusion.conditioning import LIGHTING_FILTER, lighting_from_envmap
+    from gaffer_envmap import encode_lighting, orbit_w2c_blender
+
+    env = np.full((64, 128, 3), 0.05, np.float32)
+    env[20, 37] = 400.0  # a one-texel sun
+    pose = orbit_w2c_blender(23.0, 11.0, 2.0)
+    maps = lighting_from_envmap(env, pose, size=32, compat="default")
+    trained = encode_lighting(env, pose, size=32, filter=LIGHTING_FILTER)
+    library_default = encode_lighting(env, pose, size=32)
+    assert LIGHTING_FILTER == "area"
+    assert torch.equal(maps.hdr, trained.hdr.float()) and torch.equal(maps.ldr, trained.ldr.float())
+    assert float((maps.hdr - library_default.hdr.float()).abs().max()) > 1e-3

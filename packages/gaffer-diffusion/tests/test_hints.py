@@ -12,7 +12,12 @@ import torch.nn.functional as F
 pytest.importorskip("gaffer_envmap.encode")
 
 from gaffer_diffusion import ConfigError, LightingMaps, RelightingConditions, encode_conditions
-from gaffer_diffusion.conditioning import EncodedConditions, hints_for, object_mask_of
+from gaffer_diffusion.conditioning import (
+    LIGHTING_FILTER,
+    EncodedConditions,
+    hints_for,
+    object_mask_of,
+)
 from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.hints import (
     HINT_CHANNELS,
@@ -67,12 +72,14 @@ def test_radiance_from_maps_recovers_the_encoded_camera_frame_radiance(
 ) -> None:
     env = _hdr_env()
     pose = orbit_w2c_blender(az, el, 2.0)
-    enc = encode_lighting(env, pose, size=S)
+    enc = encode_lighting(env, pose, size=S, filter=LIGHTING_FILTER)
     rad = radiance_from_maps(enc.ldr, enc.hdr)
     assert rad.shape == (1, 3, S, S) and rad.dtype == torch.float32
     assert bool(torch.isfinite(rad).all()) and float(rad.min()) >= 0.0
     # the same rotation done directly
-    direct = rotate_to_camera(env, pose, height=S, width=S, pairing="zip").permute(0, 3, 1, 2)
+    direct = rotate_to_camera(
+        env, pose, height=S, width=S, pairing="zip", filter=LIGHTING_FILTER
+    ).permute(0, 3, 1, 2)
     assert float(direct.max()) > 10.0 and bool((direct > 1).any())  # real HDR content
     torch.testing.assert_close(rad, direct, rtol=1e-4, atol=1e-5)
     # and it re-encodes to the same maps: E_L = clip(E)^(1/2.2), E_H proportional to log1p(10 E)
@@ -86,12 +93,14 @@ def test_radiance_from_maps_batches_maps_with_their_own_normalisers() -> None:
     envs = np.stack([_hdr_env(0), _hdr_env(1) * 0.2])
     envs[1, 7, 3] = 500.0  # a much brighter sun: a different HDR normaliser
     pose = orbit_w2c_blender(10.0, 5.0, 2.0)
-    enc = encode_lighting(envs, pose, size=16)
+    enc = encode_lighting(envs, pose, size=16, filter=LIGHTING_FILTER)
     rad = radiance_from_maps(enc.ldr, enc.hdr)
     for i in range(2):
-        one = encode_lighting(envs[i], pose, size=16)
+        one = encode_lighting(envs[i], pose, size=16, filter=LIGHTING_FILTER)
         torch.testing.assert_close(rad[i : i + 1], radiance_from_maps(one.ldr, one.hdr))
-        direct = rotate_to_camera(envs[i], pose, height=16, width=16, pairing="zip")
+        direct = rotate_to_camera(
+            envs[i], pose, height=16, width=16, pairing="zip", filter=LIGHTING_FILTER
+        )
         torch.testing.assert_close(rad[i], direct[0].permute(2, 0, 1), rtol=1e-4, atol=1e-5)
 
 

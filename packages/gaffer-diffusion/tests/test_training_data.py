@@ -148,6 +148,7 @@ def test_moved_envmaps_are_found_in_envmap_dirs(tmp_path: Path) -> None:
 
 
 def test_batched_lighting_matches_one_by_one(root: Path) -> None:
+    from gaffer_diffusion.conditioning import LIGHTING_FILTER, LIGHTING_SUPERSAMPLE
     from gaffer_envmap.encode import encode_lighting
 
     ds = RelightTrainDataset([root], _cfg(root), 16)
@@ -156,7 +157,13 @@ def test_batched_lighting_matches_one_by_one(root: Path) -> None:
     w2c = batch.w2c_blender.repeat_interleave(2, dim=0)
     ldr, hdr = encode_batch_lighting(env, w2c, size=16, compat="default")
     for i in range(4):
-        one = encode_lighting(env[i].numpy(), w2c[i].double().numpy(), size=16)
+        one = encode_lighting(
+            env[i].numpy(),
+            w2c[i].double().numpy(),
+            size=16,
+            filter=LIGHTING_FILTER,  # the model's filter, not the library default (issue 18)
+            supersample=LIGHTING_SUPERSAMPLE,
+        )
         torch.testing.assert_close(ldr[i], one.ldr[0], atol=1e-5, rtol=0)
         torch.testing.assert_close(hdr[i], one.hdr[0], atol=1e-5, rtol=0)
 

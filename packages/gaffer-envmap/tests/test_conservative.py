@@ -105,15 +105,15 @@ def test_unread_cells_are_splatted_not_dropped(monkeypatch: pytest.MonkeyPatch) 
 
 def test_constant_and_smooth_maps_stay_close_no_negatives() -> None:
     """Power exactness comes from a local gain per texel, which ripples where texels are read unevenly: on a
-    constant map the output stays within 15% of 1 (measured max 9.9% at 64 x 128, ss 2, 4 poses), and on
-    a smooth map it tracks the area filter."""
+    constant map the output stays within 8% of 1 (measured max 6.6% at 64 x 128, ss 2, 3 poses, with
+    GROUP_SPAN 1.5; 13% with 1), and on a smooth map it tracks the area filter."""
     rng = np.random.default_rng(3)
     ones = np.ones((128, 256, 3), np.float32)
     smooth = smooth_random_map(64, seed=2)
     for _ in range(3):
         r = _random_rotation(rng)
         out = rotate_to_camera(ones, r, height=64, width=128, filter="conservative")[0, 0].numpy()
-        assert np.abs(out - 1).max() < 0.15 and out.min() > 0
+        assert np.abs(out - 1).max() < 0.08 and out.min() > 0
         a = rotate_to_camera(smooth, r, height=32, filter="conservative")[0, 0].numpy()
         b = rotate_to_camera(smooth, r, height=32, filter="area", supersample=4)[0, 0].numpy()
         # measured 2.4% relative RMS at 64 x 32 -> 32 x 64 (the ripple above, on a 1.15 mean)

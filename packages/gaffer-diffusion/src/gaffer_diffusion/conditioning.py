@@ -32,6 +32,17 @@ from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_envmap.compat_mode import Compat
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.poses import W2CBlender
+from gaffer_envmap.rotate import Filter
+
+LIGHTING_FILTER: Filter = "area"
+"""The rotation filter of the lighting maps a model is trained and sampled with (gaffer-envmap's
+`encode_lighting(filter=...)`). gaffer-tiny was trained on maps rotated by the area filter (supersample
+2), which was gaffer-envmap's default until issue 18 made the power-exact "conservative" filter the
+default; a model must see at sampling time what it saw in training (the demo lost 1.2 dB when gaffer-tiny
+was fed conservative maps), so gaffer-diffusion names its filter here instead of following the library's
+default. A model retrained on conservative maps would change this together with its weights."""
+LIGHTING_SUPERSAMPLE = 2
+"""Sub-samples per output pixel side of `LIGHTING_FILTER` (its training setting)."""
 
 CompatMode = Compat
 """gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""
@@ -356,5 +367,13 @@ def lighting_from_envmap(
             "Encoding an environment map needs `gaffer_envmap.encode` (gaffer-envmap>=0.1,<0.2): "
             'pip install "gaffer-envmap>=0.1,<0.2". Alternatively pass already-encoded `LightingMaps`.'
         ) from exc
-    encoding = encode_lighting(env, w2c_blender, size=size, compat=compat, spin_deg=spin_deg)
+    encoding = encode_lighting(
+        env,
+        w2c_blender,
+        size=size,
+        compat=compat,
+        spin_deg=spin_deg,
+        filter=LIGHTING_FILTER,
+        supersample=LIGHTING_SUPERSAMPLE,
+    )
     return LightingMaps(ldr=encoding.ldr.float(), hdr=encoding.hdr.float())

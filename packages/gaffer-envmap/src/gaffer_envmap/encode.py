@@ -6,9 +6,10 @@
 Two modes:
 - `compat="neural-gaffer"`: the authors' exact pipeline (`compat.py`), uint8-quantised, for the released
   checkpoint.
-- `compat="default"`: rotation straight to the `size x size` grid in linear space with area filtering
-  (power within ~1% at the default supersampling; `filter="conservative"` keeps it to float round-off
-  without a global gain, `conservative.py`, through a fused numba kernel on the CPU), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
+- `compat="default"`: rotation straight to the `size x size` grid in linear space, power-exact per
+  channel to float round-off without a global gain (`filter="conservative"`, `conservative.py`, through
+  a fused numba kernel on the CPU; `filter="area"`, the default before issue 18, is within ~1% for most
+  maps), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
   normaliser taken from the SOURCE map (its peak after the same pre-filter), so it does not change as the
   camera turns, and the relative brightness of different maps survives... up to each map's own peak.
   See docs/encodings.md for a side-by-side figure.
@@ -127,7 +128,7 @@ def encode_lighting(
     size: int = 256,
     compat: CompatArg = "default",
     spin_deg: "float | int | Tensor" = 0.0,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     quantize: bool = False,
     device: "torch.device | str | None" = None,

@@ -10,12 +10,17 @@ Unlike the authors' pipeline (reference section 4; reproduced in `compat.py`), t
 - wraps the u = 0/1 seam and crosses the poles correctly (the row above row 0 is row 0 turned by half);
 - is exact where it should be: an identity pose, or a yaw by whole pixels (same size in and out), is
   detected and done as a permutation, so it returns the input bit for bit / equals `np.roll`;
-- filters by area: "area" averages s x s stratified bilinear sub-samples per output pixel, weighted by
-  their solid angle, after a conservative (power-exact) pre-downsample of the source to about s samples
-  per output pixel (a tent-filtered box over the footprint: measured median power error 1.5% for 0.5-2
-  degree suns at s = 2, against 12% with nearest taps); `renormalize=True` then rescales each map so total
-  power matches the source exactly (at the price of a global gain that can shift dim regions when a sun
-  is under-sampled, hence off by default). "bilinear" point-samples once per pixel (right when magnifying).
+- conserves power by default: "conservative" (`conservative.py`) reads bilinear sub-samples of the
+  source, each texel scaled by its own gain Omega_i / C_i so that the total read of every texel equals
+  its solid angle: power is exact per channel and per map, to float round-off, with no global gain
+  (issue 18; the price is a local ripple of the gain on flat maps, about 0.5% rms, 6% at worst);
+- "area" averages s x s stratified bilinear sub-samples per output pixel, weighted by their solid angle,
+  after a conservative (power-exact) pre-downsample of the source to about s samples per output pixel
+  (measured median power error 1.5% for 0.5-2 degree suns at s = 2, up to 6.4% for a sun the sub-samples
+  miss); `renormalize=True` then rescales each map so total power matches the source exactly (at the
+  price of a global gain that can shift dim regions when a sun is under-sampled, hence off by default).
+  gaffer-tiny was trained on it, so gaffer-diffusion asks for it by name. "bilinear" point-samples once
+  per pixel (right when magnifying).
 
 Shapes: maps are channels-last `[M, He, We, 3]`, poses `[P, 3, 3]` world -> Blender camera rotations.
 """
@@ -234,7 +239,7 @@ def rotate_to_camera(
     *,
     height: int | None = None,
     width: int | None = None,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | int | Tensor" = 0.0,
@@ -248,10 +253,10 @@ def rotate_to_camera(
         w2c_blender: Blender world-to-camera poses, `[P, 3, 4]` (or 3x3 / 4x4, or `W2CBlender`s).
         height: output rows (default: the source's). The model's maps use height = width = 256.
         width: output columns (default 2 * height). Any width works; a 2:1 map has square pixels.
-        filter: "area" (default; solid-angle-weighted box of bilinear sub-samples; power off by up to a
-            few percent for sub-pixel suns), "conservative" (power-exact per channel and per map, see
-            `conservative`; opt-in: its per-cell gain ripples by about 10% on flat maps at supersample 2
-            and it is slower, so it is not yet the default, issue 18) or "bilinear" (one tap per pixel).
+        filter: "conservative" (default; power-exact per channel and per map, see `conservative`;
+            its per-cell gain ripples on flat maps by about 0.5% rms, 6% at worst, at supersample 2),
+            "area" (solid-angle-weighted box of bilinear sub-samples; power off by up to a few percent
+            for sub-pixel suns; the default before issue 18) or "bilinear" (one tap per pixel).
         supersample: s for s x s sub-samples per output pixel (conservative: s rows and as many columns as
             keep them square; area: s x s; >= 1).
         renormalize: rescale each map so output power equals source power exactly (area filter; off by
@@ -315,7 +320,7 @@ def rotate_channels_first(
     out_h: int,
     out_w: int,
     *,
-    filter: Filter = "area",
+    filter: Filter = "conservative",
     supersample: int = 2,
     renormalize: bool = False,
     spin_deg: "float | int | Tensor" = 0.0,

@@ -692,6 +692,7 @@ def encode_batch_lighting(
     Returns:
         `(ldr, hdr)`, each `[N, 3, size, size]` float32 in [0, 1] on `device`.
     """
+    from gaffer_diffusion.conditioning import LIGHTING_FILTER, LIGHTING_SUPERSAMPLE
     from gaffer_envmap.encode import encode_lighting
 
     enc = encode_lighting(
@@ -699,6 +700,8 @@ def encode_batch_lighting(
         w2c_blender.detach().double().cpu(),
         size=size,
         compat=compat,
+        filter=LIGHTING_FILTER,  # what the model is sampled with (conditioning.LIGHTING_FILTER)
+        supersample=LIGHTING_SUPERSAMPLE,
         device=device,
     )
     return enc.ldr.to(device=device, dtype=torch.float32), enc.hdr.to(
