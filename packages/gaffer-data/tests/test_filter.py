@@ -154,3 +154,26 @@ def test_classifier_needs_enough_labels(tmp_path: Path, objects: Path) -> None:
     labels.write_text("id,quality\n")
     with pytest.raises(InputError, match="object_id,label"):
         train_classifier(manifest, labels, tmp_path / "clf")
+
+
+@pytest.mark.parametrize("missing", ["trimesh", "pymeshlab"])
+def test_filter_without_the_mesh_libraries_refuses_in_one_line(
+    objects: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, missing: str
+) -> None:
+    """Issue 17: without trimesh every object was rejected "not installed" and the run exited 0."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_module(name, *args, **kwargs):
+        if name == missing or name.startswith(missing + "."):
+            raise ImportError(f"No module named {missing!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_module)
+    out = tmp_path / "manifest.jsonl"
+    assert main(["filter", str(objects), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert f"`{missing}` is not installed" in err and "gaffer-data[filter]" in err
+    assert not out.exists()  # refused before any object was loaded or a line written

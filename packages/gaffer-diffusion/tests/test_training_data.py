@@ -9,6 +9,7 @@ import torch
 
 pytest.importorskip("gaffer_data")
 
+from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.training import (
     DataConfig,
     DataError,
@@ -97,12 +98,19 @@ def test_sampler_resumes_and_shards_exactly() -> None:
     assert r0 == stream[4:16:2] and r1 == stream[5:17:2]
 
 
-def test_split_is_deterministic_and_keeps_one_for_training() -> None:
+def test_split_is_deterministic_and_refuses_to_hold_out_every_object() -> None:
     ids = [f"o{i}" for i in range(10)]
     train, val = split_object_ids(ids, 3)
     assert len(val) == 3 and set(train) | set(val) == set(ids)
     assert split_object_ids(list(reversed(ids)), 3) == (train, val)
-    assert split_object_ids(["a"], 5) == (("a",), ())
+    assert split_object_ids(["a"], 0) == (("a",), ())
+    assert len(split_object_ids(ids, 9)[0]) == 1  # the most that can be held out
+    # issue 17: `val_objects: 50` on 12 objects was cut to 11 silently, leaving 1 to train on
+    for objects, num_val in ((ids, 10), (ids, 50), (["a"], 1)):
+        with pytest.raises(ConfigError, match=r"`data\.val_objects`") as info:
+            split_object_ids(objects, num_val)
+        message = str(info.value)
+        assert f"is {num_val}" in message and f"holds {len(objects)} object" in message
 
 
 def test_missing_and_corrupt_files_are_skipped_with_a_count(

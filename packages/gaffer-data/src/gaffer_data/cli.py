@@ -1,5 +1,10 @@
 """The `gaffer-data` command line: `render`, `render-multiview`, `recipe`, `filter`, `train-classifier`,
-`convert-authors`, `schema`, `info`."""
+`convert-authors`, `schema`, `info`.
+
+Exit codes: 0 done; 1 some objects failed (`render`, `render-multiview`, `convert-authors`: the
+others were written, rerun to retry) or `info --verify` found incomplete objects; 2 refused or
+failed (one stderr line naming the argument and the fix); 130 interrupted (Ctrl-C; finished objects
+are kept). `--debug` also prints the traceback of an expected failure."""
 
 import argparse
 import dataclasses
@@ -10,10 +15,25 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_data.errors import GafferDataError
-from gaffer_envmap.errors import GafferEnvmapError
+from gaffer_envmap.errors import (
+    GafferEnvmapError,
+    add_debug_argument,
+    cli_failure,
+    exit_codes_epilog,
+)
 
 if TYPE_CHECKING:
     from gaffer_data.config import RenderConfig
+
+
+EXIT_CODES = {
+    0: "done",
+    1: "some objects failed (render, render-multiview, convert-authors; the others were written, "
+    "rerun to retry) or `info --verify` found incomplete objects",
+    2: "refused or failed (one stderr line naming the argument and the fix)",
+    130: "interrupted (Ctrl-C; finished objects are kept, rerun to resume)",
+}
+"""What `main` returns (documented in `--help` and docs/cli.md)."""
 
 
 def _common_config(args: argparse.Namespace) -> dict[str, object]:
@@ -339,7 +359,11 @@ def build_parser() -> argparse.ArgumentParser:
     """The argument parser of `gaffer-data` (exposed for docs and tests)."""
     from gaffer_data.filter.memory_cap import DEFAULT_MAX_WORKER_MEMORY_MB
 
-    parser = argparse.ArgumentParser(prog="gaffer-data", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="gaffer-data",
+        description=(__doc__ or "").split("\n\n")[0],
+        epilog=exit_codes_epilog(EXIT_CODES),
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="log INFO messages to stderr")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -456,6 +480,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("root", type=Path, help="a dataset folder written by `gaffer-data render`")
     i.add_argument("--verify", action="store_true", help="check every file's sha256")
     i.set_defaults(func=_info)
+    add_debug_argument(parser)
     return parser
 
 
@@ -468,21 +493,16 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args))
-    except GafferDataError as exc:
-        print(f"error: {exc.diagnostics()}", file=sys.stderr)
-        return 2
+    except GafferDataError as exc:  # with --debug (cli_failure) the traceback comes first
+        return cli_failure(f"error: {exc.diagnostics()}", 2, args)
     except GafferEnvmapError as exc:  # env-map I/O of a sibling package (issue 17)
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}", 2, args)
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
-        print(
-            "interrupted (Ctrl-C): stopped; finished objects are kept, rerun to resume",
-            file=sys.stderr,
+        return cli_failure(
+            "interrupted (Ctrl-C): stopped; finished objects are kept, rerun to resume", 130, args
         )
-        return 130
     except OSError as exc:  # an unwritable or clashing output path, a full disk
-        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}. Check the path's permissions and free space.", 2, args)
 
 
 if __name__ == "__main__":

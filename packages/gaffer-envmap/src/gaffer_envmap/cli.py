@@ -1,6 +1,8 @@
 """`gaffer-envmap`: inspect, rotate, encode and augment environment maps from the shell.
 
-Exit codes: 0 success, 2 bad input (a message names the argument and the fix), 1 anything else.
+Exit codes: 0 done; 2 refused or failed (bad input, unreadable or unwritable file: one stderr line
+naming the argument and the fix); 130 interrupted (Ctrl-C); 1 only for an unexpected internal error
+(a bug: Python prints its traceback). `--debug` also prints the traceback of an expected failure.
 Nothing is written on failure: every output goes through an atomic write.
 """
 
@@ -16,9 +18,16 @@ import numpy as np
 from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
 from gaffer_envmap.compat_mode import COMPAT_MODES
-from gaffer_envmap.errors import GafferEnvmapError
+from gaffer_envmap.errors import (
+    GafferEnvmapError,
+    NonFiniteError,
+    add_debug_argument,
+    cli_failure,
+    exit_codes_epilog,
+)
 from gaffer_envmap.io import read_envmap, write_envmap, write_png
 from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
+from gaffer_envmap.sanitize import add_sanitize_argument
 from gaffer_envmap.stats import describe, total_power
 
 
@@ -45,6 +54,14 @@ def _positive_int(text: str) -> int:
 
 
 log = logging.getLogger("gaffer_envmap")
+
+EXIT_CODES = {
+    0: "done",
+    2: "refused or failed (bad input, unreadable or unwritable file; one stderr line)",
+    130: "interrupted (Ctrl-C)",
+    1: "an unexpected internal error (a bug; Python prints the traceback)",
+}
+"""What `main` returns (documented in `--help` and docs/cli.md)."""
 
 
 MAX_SIZE = 8192
@@ -77,18 +94,36 @@ def _load_w2c(path: str) -> W2CBlender:
         raise GafferEnvmapError(f"`--w2c` {path!r}: {exc}") from exc
 
 
+def _sanitize_outcome(path: str, policy: str) -> str:
+    """What reading `path` with `--sanitize policy` would do (info reports it, it refuses nothing)."""
+    try:
+        env = read_envmap(path, sanitize=policy)  # type: ignore[arg-type]
+    except NonFiniteError:
+        from gaffer_envmap.io import read_image_array
+        from gaffer_envmap.sanitize import sanitize
+
+        _, found = sanitize(read_image_array(path)[..., :3], "zero")
+        return (
+            f"{policy}: would refuse the map ({found.describe()}); pass --sanitize zero or clamp "
+            "to repair it"
+        )
+    done = env.metadata.get("sanitize") if env.metadata else None
+    return f"{policy}: {done}" if done else f"{policy}: clean (nothing to change)"
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
-    env = read_envmap(args.map, sanitize="zero")
+    env = read_envmap(args.map, sanitize="zero")  # describe() counts the raw pixels itself
     raw = None
     if args.map.lower().endswith(".exr"):
         from gaffer_envmap.io import read_image_array
 
         raw = read_image_array(args.map)[..., :3]
-    info = describe(env, raw)
+    report = asdict(describe(env, raw))
+    report["sanitize"] = _sanitize_outcome(args.map, args.sanitize)
     if args.json:
-        print(json.dumps(asdict(info), indent=2))
+        print(json.dumps(report, indent=2))
     else:
-        for k, v in asdict(info).items():
+        for k, v in report.items():
             print(f"{k:26s} {v}")
     return 0
 
@@ -229,26 +264,26 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for docs and tests)."""
-    p = argparse.ArgumentParser(prog="gaffer-envmap", description=(__doc__ or "").splitlines()[0])
+    p = argparse.ArgumentParser(
+        prog="gaffer-envmap",
+        description=(__doc__ or "").splitlines()[0],
+        epilog=exit_codes_epilog(EXIT_CODES),
+    )
     p.add_argument("-v", "--verbose", action="store_true", help="log INFO messages to stderr")
     sub = p.add_subparsers(dest="command", required=True)
 
     def add_src(sp: argparse.ArgumentParser, name: str = "src") -> None:
         sp.add_argument(name, help="environment map (.exr, .hdr, .png/.jpg), Blender convention")
-        sp.add_argument(
-            "--sanitize",
-            choices=["raise", "strict", "zero", "clamp"],
-            default="raise",
-            help="NaN/Inf/negative pixels: 'raise' (default) sets tiny negatives from lossy "
-            "compression to 0 with an INFO line and refuses anything else; 'strict' refuses any; "
-            "'zero' sets all to 0; 'clamp' also keeps +Inf as the brightest finite value",
-        )
+        add_sanitize_argument(sp)
 
     sp = sub.add_parser(
         "info", help="size, range, NaN/Inf/negative counts, power, dominant light direction"
     )
     sp.add_argument("map", help="environment map (.exr, .hdr, .png/.jpg) to describe")
     sp.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_sanitize_argument(
+        sp, what="reported, not applied (the `sanitize` line says what this policy would do): "
+    )
     sp.set_defaults(func=_cmd_info)
 
     sp = sub.add_parser(
@@ -352,6 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="side of the encoded ldr/hdr maps in pixels (default: 256)",
     )
     sp.set_defaults(func=_cmd_demo)
+    add_debug_argument(p)
     return p
 
 
@@ -363,15 +399,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args))
-    except GafferEnvmapError as exc:
-        print(f"gaffer-envmap {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except GafferEnvmapError as exc:  # with --debug (cli_failure) the traceback comes first
+        return cli_failure(f"gaffer-envmap {args.command}: error: {exc}", 2, args)
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
-        print("interrupted (Ctrl-C): stopped; files already written are complete", file=sys.stderr)
-        return 130
+        return cli_failure(
+            "interrupted (Ctrl-C): stopped; files already written are complete", 130, args
+        )
     except OSError as exc:  # an unwritable or clashing output path, a full disk
-        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}. Check the path's permissions and free space.", 2, args)
 
 
 if __name__ == "__main__":

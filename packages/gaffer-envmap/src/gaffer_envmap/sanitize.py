@@ -15,11 +15,14 @@ import numpy as np
 from gaffer_envmap.errors import NonFiniteError
 
 __all__ = [
+    "SANITIZE_POLICIES",
     "TINY_NEGATIVE_FRACTION",
     "TINY_NEGATIVE_RELATIVE",
     "SanitizePolicy",
     "SanitizeReport",
+    "add_sanitize_argument",
     "sanitize",
+    "sanitize_help",
 ]
 
 logger = logging.getLogger(__name__)
@@ -39,6 +42,43 @@ SanitizePolicy = Literal["raise", "strict", "zero", "clamp"]
 """
 
 _POLICIES = ("raise", "strict", "zero", "clamp")
+SANITIZE_POLICIES: tuple[SanitizePolicy, ...] = _POLICIES
+"""The choices of every gaffer CLI's `--sanitize` flag (one source for all four packages)."""
+
+_POLICY_HELP = {
+    "raise": "sets tiny negatives from lossy compression to 0 with an INFO line and refuses "
+    "anything else",
+    "strict": "refuses any",
+    "zero": "sets all to 0",
+    "clamp": "sets all to 0 but +Inf, which becomes the brightest finite value",
+}
+
+
+def sanitize_help(default: SanitizePolicy = "raise", *, what: str = "") -> str:
+    """Help text of a `--sanitize` flag whose default is `default` (the same words on every CLI).
+
+    `what` is an optional prefix saying what the flag applies to (e.g. "reported, not applied: ").
+    """
+    parts = [
+        f"'{p}'{' (default)' if p == default else ''} {_POLICY_HELP[p]}" for p in SANITIZE_POLICIES
+    ]
+    return f"{what}NaN/Inf/negative env-map pixels: " + "; ".join(parts)
+
+
+def add_sanitize_argument(
+    parser: "argparse.ArgumentParser | argparse._ArgumentGroup",
+    default: SanitizePolicy = "raise",
+    *,
+    what: str = "",
+) -> None:
+    """Add the `--sanitize` flag (choices `SANITIZE_POLICIES`, help `sanitize_help`) to `parser`."""
+    parser.add_argument(
+        "--sanitize",
+        choices=SANITIZE_POLICIES,
+        default=default,
+        help=sanitize_help(default, what=what),
+    )
+
 
 TINY_NEGATIVE_RELATIVE = 0.05
 """Largest |negative| that counts as compression noise, relative to the map's mean |radiance|. The
@@ -89,6 +129,8 @@ class SanitizeReport:
 
 
 if TYPE_CHECKING:
+    import argparse
+
     _PolicyArg = SanitizePolicy
 else:  # at run time any str reaches `sanitize`, which refuses an unknown one with a ValueError
     _PolicyArg = str

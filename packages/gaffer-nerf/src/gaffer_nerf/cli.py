@@ -25,7 +25,8 @@ release: the paper's 50 steps, guidance 3) unless `--steps`, `--guidance`, `--av
 Every command checks its arguments first (files exist and parse, numbers in range, outputs writable;
 `gaffer_nerf.preflight`), before torch is imported or a model loaded, so a refusal takes well under a
 second and leaves nothing behind. Exit codes: 0 done, 2 refused or failed (one line on stderr),
-130 Ctrl-C.
+130 Ctrl-C; 1 only for an unexpected internal error (a bug: Python prints its traceback). `--debug`
+also prints the traceback of an expected failure.
 """
 
 import argparse
@@ -38,6 +39,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gaffer_envmap.compat_mode import COMPAT_MODES
+from gaffer_envmap.errors import add_debug_argument, cli_failure, exit_codes_epilog
+from gaffer_envmap.sanitize import add_sanitize_argument
 from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
@@ -53,9 +56,21 @@ if TYPE_CHECKING:  # torch and the field code are imported only once the argumen
 
 logger = logging.getLogger(__name__)
 
+EXIT_CODES = {
+    0: "done",
+    2: "refused or failed (one stderr line naming the argument and the fix)",
+    130: "interrupted (Ctrl-C)",
+    1: "an unexpected internal error (a bug; Python prints the traceback)",
+}
+"""What `main` returns (documented in `--help` and docs/cli.md)."""
+
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gaffer-nerf", description=(__doc__ or "").split("\n\n")[0])
+    p = argparse.ArgumentParser(
+        prog="gaffer-nerf",
+        description=(__doc__ or "").split("\n\n")[0],
+        epilog=exit_codes_epilog(EXIT_CODES),
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     f = sub.add_parser("fit", help="fit a TensoRF field to the input-lighting views")
@@ -107,13 +122,7 @@ def _parser() -> argparse.ArgumentParser:
         "...), instead of --target-lighting",
     )
     r.add_argument("--envmaps", type=Path, help="folder holding the pool's env maps")
-    r.add_argument(
-        "--sanitize",
-        choices=("zero", "clamp", "raise", "strict"),
-        default="zero",
-        help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail ('raise' still "
-        "sets tiny negatives from lossy compression to 0, 'strict' refuses any)",
-    )
+    add_sanitize_argument(r, "zero")
     r.add_argument(
         "--checkpoint",
         type=Path,
@@ -232,6 +241,7 @@ def _parser() -> argparse.ArgumentParser:
             help="torch device: auto (cuda when available, else cpu; the default), cpu, cuda[:N], mps",
         )
         sp.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    add_debug_argument(p)
     return p
 
 
@@ -652,18 +662,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     handlers = {"fit": _fit, "relight": _relight, "render": _render, "evaluate": _evaluate}
     try:
         return handlers[args.command](args)
-    except GafferNerfError as exc:
-        print(f"error: {exc.diagnostics()}", file=sys.stderr)
-        return 2
+    except GafferNerfError as exc:  # with --debug (cli_failure) the traceback comes first
+        return cli_failure(f"error: {exc.diagnostics()}", 2, args)
     except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}", 2, args)
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
-        print("interrupted (Ctrl-C): stopped; files already written are complete", file=sys.stderr)
-        return 130
+        return cli_failure(
+            "interrupted (Ctrl-C): stopped; files already written are complete", 130, args
+        )
     except OSError as exc:  # an unwritable or clashing output path, a full disk
-        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}. Check the path's permissions and free space.", 2, args)
 
 
 if __name__ == "__main__":

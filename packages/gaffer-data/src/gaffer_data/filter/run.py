@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_data._atomic import atomic_write_text
-from gaffer_data.errors import ConfigError
+from gaffer_data.errors import ConfigError, missing_extra
 from gaffer_data.filter.classifier import QualityClassifier
 from gaffer_data.filter.features import extract_features
 from gaffer_data.filter.isolate import extract_isolated
@@ -50,6 +50,23 @@ class FilterSummary:
 
     total: int
     accepted: int
+
+
+def _need_mesh_libraries() -> None:
+    """Refuse the run when the `filter` extra's mesh libraries are missing (issue 17).
+
+    `extract_features` turns any loader error into a per-object rejection reason, which is right for
+    a hostile file but not for a missing library: every object would be rejected and the run would
+    "succeed". Checked once, in this process, before any worker starts.
+
+    Raises:
+        MissingDependencyError: trimesh or pymeshlab cannot be imported (the pip command included).
+    """
+    for module in ("trimesh", "pymeshlab"):
+        try:
+            __import__(module)
+        except ImportError as exc:
+            raise missing_extra(module, "filter") from exc
 
 
 def filter_objects(
@@ -88,6 +105,7 @@ def filter_objects(
         ConfigError: `workers` < 1, `timeout_s` not a positive number, `max_worker_memory_mb` < 0, or
             annotation rules without any annotations.
         InputError: no objects, or a malformed annotation file.
+        MissingDependencyError: trimesh or pymeshlab (the `filter` extra) is not installed.
     """
     if not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"`workers`={workers!r} must be an integer >= 1 (`--workers`).")
@@ -119,6 +137,8 @@ def filter_objects(
     annotated = {oid: (annotations or {}).get(oid) for oid, _ in pairs}
     first = {oid: rules.evaluate_annotation(annotated[oid]) for oid, _ in pairs}
     to_load = [(oid, p) for oid, p in pairs if all(o.passed for o in first[oid])]
+    if to_load:
+        _need_mesh_libraries()  # else every object would be rejected "not installed", exit 0
     options = {"max_file_mb": rules.max_file_mb, "max_faces": rules.max_faces}
     # Looked up at call time so tests can stand in a hostile extractor (it must be importable).
     features = extract_isolated(

@@ -27,12 +27,15 @@ The code: `parser.py` builds the parser; one module per command group holds its 
 flag checks (`relight.py`, `evaluate.py`, `demo.py`, `authors.py` for prepare/check, `train.py` for
 train/export/init-random); `_common.py`, `_flag_checks.py`, `_lighting.py` and `_photo.py` hold what
 they share. `main` (here) dispatches and turns every error into one line and an exit status.
+
+Exit codes (`parser.EXIT_CODES`): 0 done; 1 `relight` on a folder wrote some images but others
+failed (listed); 2 refused or failed (one stderr line naming the argument and the fix); 130
+interrupted (Ctrl-C). `--debug` also prints the traceback of an expected failure.
 """
 
 from __future__ import annotations
 
 import logging
-import sys
 from collections.abc import Sequence
 
 # Only torch-free modules at import time: every argument is checked before torch, diffusers or a
@@ -52,7 +55,7 @@ from gaffer_diffusion.cli.evaluate import _evaluate
 from gaffer_diffusion.cli.parser import _parser
 from gaffer_diffusion.cli.relight import _relight
 from gaffer_diffusion.cli.train import _export, _init_random, _train
-from gaffer_envmap.errors import GafferError
+from gaffer_envmap.errors import GafferError, cli_failure
 
 __all__ = ["main"]
 
@@ -84,21 +87,18 @@ def main(argv: Sequence[str] | None = None) -> int:
 
                 return run_app(args)
     except GafferError as exc:  # any gaffer package's error (an unreadable EXR is also an OSError)
-        print(f"error: {exc.diagnostics()}", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc.diagnostics()}", 2, args)  # --debug: traceback first
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
-        print(
+        return cli_failure(
             "interrupted (Ctrl-C): stopped; files already written are complete "
             "(train: --resume continues from the last checkpoint)",
-            file=sys.stderr,
+            130,
+            args,
         )
-        return 130
     except OSError as exc:  # an unwritable or clashing output path, a full disk
-        print(f"error: {exc}. Check the path's permissions and free space.", file=sys.stderr)
-        return 2
+        return cli_failure(f"error: {exc}. Check the path's permissions and free space.", 2, args)
     except Exception as exc:  # errors from gaffer-envmap (reading EXRs, poses) carry their own fix
         if type(exc).__module__.startswith("gaffer_envmap"):
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+            return cli_failure(f"error: {exc}", 2, args)
         raise
     return 1

@@ -70,6 +70,7 @@ def _demo(args: argparse.Namespace) -> int:
         keep_background=not args.full_frame,
         compat=args.compat,
         object_fraction=args.object_fraction,
+        sanitize=args.sanitize,
     )
     result = run_demo(config)
     gif = f", {result.turntable_gif}" if result.turntable_gif is not None else ""

@@ -112,6 +112,38 @@ def _evaluate(args: argparse.Namespace) -> int:
     return _evaluate_folders(args)
 
 
+def _check_envmaps(pairs: Sequence[Any], policy: str) -> None:
+    """`--sanitize`: read each env map the pairs are lit by once with `policy`, before the model loads.
+
+    The scoring (`gaffer_diffusion.evaluation`) reads the maps again with "zero", which yields the
+    same pixels as every policy that passes here ("raise" sets only tiny negatives to 0, "strict"
+    passes only clean maps), except "clamp" on a map holding +Inf: that is refused here rather than
+    scored with a different map than asked for.
+    """
+    import numpy as np
+
+    from gaffer_envmap.errors import NonFiniteError
+    from gaffer_envmap.io import read_envmap
+
+    sources = sorted({s for p in pairs if (s := getattr(p.lighting, "source", None)) is not None})
+    for source in sources:
+        try:
+            env = read_envmap(source, sanitize=policy)  # type: ignore[arg-type]
+        except NonFiniteError as exc:  # said as the flag, not as the API's `sanitize=` hint
+            what = str(exc).split(" Pass `sanitize=")[0]
+            raise InputValueError(
+                f"{what} Pass `--sanitize zero` (or `clamp`) to repair the dataset's map "
+                f"(`--sanitize {policy}` refused it), or fix the file."
+            ) from exc
+        if policy == "clamp" and not np.array_equal(
+            env.radiance_linear, read_envmap(source, sanitize="zero").radiance_linear
+        ):
+            raise InputValueError(
+                f"`{source}` holds +Inf pixels, which `--sanitize clamp` would keep bright but "
+                "evaluate's scoring sets to 0; pass `--sanitize zero` or repair the map."
+            )
+
+
 def _evaluate_dataset(args: argparse.Namespace) -> int:
     from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
 
@@ -123,6 +155,7 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
         envmap_dirs=[args.envmaps] if args.envmaps is not None else [],
         limit=args.limit,
     )
+    _check_envmaps(pairs, args.sanitize)  # before the model loads
     perceptual = _perceptual_arg(args)
     from gaffer_diffusion.pipelines import RelightPipeline
 
@@ -176,9 +209,18 @@ def _evaluate_folders(args: argparse.Namespace) -> int:
         )
     if len(names) < len(gt_names):
         logger.warning("%d ground-truth images have no prediction", len(gt_names) - len(names))
+    mask = _read_dir_images(args.mask_dir, names, "L") if args.mask_dir else None
+    if mask is not None:  # an all-black mask leaves nothing to score (it was scored, issue 17)
+        empty = [n for n, m in zip(names, mask, strict=True) if float(m.max()) <= 0.0]
+        if empty:
+            shown = ", ".join(empty[:5]) + (", ..." if len(empty) > 5 else "")
+            raise InputValueError(
+                f"`--mask-dir` {args.mask_dir}: {len(empty)} of {len(names)} masks are all black "
+                f"(no object pixel to score): {shown}. Fix or remove them, or drop `--mask-dir` "
+                "to score the full frames."
+            )
     pred = _read_dir_images(args.pred, names, "RGB")
     gt = _read_dir_images(args.gt, names, "RGB")
-    mask = _read_dir_images(args.mask_dir, names, "L") if args.mask_dir else None
     perceptual = _perceptual_arg(args)
     report = evaluate_images(pred, gt, mask=mask, names=names, perceptual=perceptual)  # type: ignore[arg-type]
     if args.json:

@@ -20,13 +20,25 @@ from gaffer_diffusion._choices import (
 )
 from gaffer_diffusion.app.config import add_app_arguments
 from gaffer_envmap.compat_mode import COMPAT_MODES
+from gaffer_envmap.errors import add_debug_argument, exit_codes_epilog
+from gaffer_envmap.sanitize import add_sanitize_argument
 
 _DESCRIPTION = "Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`."
 """The first paragraph of `gaffer_diffusion.cli`'s docstring, shown atop `--help`."""
 
+EXIT_CODES = {
+    0: "done",
+    1: "`relight` on a folder wrote some images but others failed (listed on stderr)",
+    2: "refused or failed (one stderr line naming the argument and the fix)",
+    130: "interrupted (Ctrl-C; train: --resume continues from the last checkpoint)",
+}
+"""What `gaffer_diffusion.cli.main` returns (documented in `--help` and docs/cli.md)."""
+
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gaffer-diffusion", description=_DESCRIPTION)
+    p = argparse.ArgumentParser(
+        prog="gaffer-diffusion", description=_DESCRIPTION, epilog=exit_codes_epilog(EXIT_CODES)
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("relight", help="relight one object image under an environment map")
@@ -96,12 +108,7 @@ def _parser() -> argparse.ArgumentParser:
         help="lighting encoding; 'neural-gaffer' matches the released checkpoint (the default with "
         "--checkpoint); without one, gaffer-tiny's own ('default')",
     )
-    light.add_argument(
-        "--sanitize",
-        choices=("zero", "clamp", "raise"),
-        default="zero",
-        help="NaN/Inf/negative env-map pixels: set to 0 (default), clamp, or fail",
-    )
+    add_sanitize_argument(light, "zero")
     r.add_argument(
         "--checkpoint",
         type=Path,
@@ -146,6 +153,7 @@ def _parser() -> argparse.ArgumentParser:
     ds.add_argument(
         "--envmaps", type=Path, help="where the dataset's env maps are now, if they moved"
     )
+    add_sanitize_argument(ds)
     ds.add_argument(
         "--input-lighting",
         type=_input_lighting,
@@ -260,6 +268,9 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the bundled HDRIs that have no ground-truth render",
     )
+    add_sanitize_argument(
+        d, what="the --example's maps (the bundled HDRIs are read as gaffer-envmap ships them): "
+    )
 
     _add_authors_commands(sub)
 
@@ -291,6 +302,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--resume", action="store_true", help="continue from the newest checkpoint in output_dir"
     )
+    add_debug_argument(p)
     return p
 
 

@@ -10,6 +10,7 @@ from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.evaluation import InputLighting
 from gaffer_diffusion.pipelines import SamplingConfig
 from gaffer_envmap.compat_mode import compat_problem
+from gaffer_envmap.sanitize import SANITIZE_POLICIES, SanitizePolicy
 
 DEFAULT_STEPS = 50
 """Denoising steps when neither `num_inference_steps` nor the model suggests a number (paper: 50)."""
@@ -58,6 +59,10 @@ class DemoConfig:
         extra_hdris: also relight under the bundled HDRIs that have no ground-truth render.
         keep_background: keep the input outside its alpha (`RelightingConditions.mask`); False:
             the model's full frame.
+        sanitize: NaN/Inf/negative pixels of the `example`'s env maps (`gaffer_envmap.read_envmap`,
+            CLI `--sanitize`): "raise" (default: tiny negatives from lossy compression become 0,
+            anything else is refused), "strict", "zero" or "clamp". The bundled HDRIs (extra maps,
+            turntable) are read as gaffer-envmap ships them (`read_bundled_hdri`).
 
     Raises:
         ConfigError: on out-of-range values.
@@ -81,6 +86,7 @@ class DemoConfig:
     extra_hdris: bool = True
     keep_background: bool = True
     object_fraction: float | None = None
+    sanitize: SanitizePolicy = "raise"
 
     def __post_init__(self) -> None:
         if not isinstance(self.frames, int) or self.frames < 0:
@@ -97,6 +103,11 @@ class DemoConfig:
             guidance_scale=DEFAULT_GUIDANCE if self.guidance_scale is None else self.guidance_scale,
             average_samples=self.average_samples or 1,
         )
+        if self.sanitize not in SANITIZE_POLICIES:
+            raise ConfigError(
+                f"`sanitize` (--sanitize) is {self.sanitize!r}; expected one of "
+                f"{', '.join(SANITIZE_POLICIES)}."
+            )
         if self.compat is not None and (problem := compat_problem("compat", self.compat)):
             raise ConfigError(problem)
         if self.object_fraction is not None and not 0.0 < self.object_fraction <= 1.0:

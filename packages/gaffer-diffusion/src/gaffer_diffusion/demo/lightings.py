@@ -13,6 +13,7 @@ from gaffer_diffusion.demo.example import _Example
 from gaffer_diffusion.demo.turntable import _turntable_hdri
 from gaffer_diffusion.errors import DatasetError
 from gaffer_diffusion.evaluation import EnvmapLighting
+from gaffer_envmap.sanitize import SanitizePolicy
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -48,16 +49,24 @@ def _preview(env: Any) -> np.ndarray:
 class _Envmaps:
     """Each env-map file read once per run, then augmented as the renderer did (cf. `pair_lighting`)."""
 
-    def __init__(self) -> None:
+    def __init__(self, sanitize: SanitizePolicy = "raise") -> None:
         self._read: dict[Path, Any] = {}
+        self._sanitize: SanitizePolicy = sanitize
 
     def get(self, lt: EnvmapLighting) -> Any:
         from gaffer_envmap import AugmentSpec, EnvironmentMap
+        from gaffer_envmap.errors import NonFiniteError
         from gaffer_envmap.io import read_envmap
 
         if lt.source not in self._read:
             try:
-                self._read[lt.source] = read_envmap(lt.source, sanitize="zero")
+                self._read[lt.source] = read_envmap(lt.source, sanitize=self._sanitize)
+            except NonFiniteError as exc:  # said as the flag, not as the API's `sanitize=` hint
+                what = str(exc).split(" Pass `sanitize=")[0]
+                raise DatasetError(
+                    f"{what} Pass `--sanitize zero` (or `clamp`) to repair the map of `--example` "
+                    f"(`--sanitize {self._sanitize}` refused it)."
+                ) from exc
             except (OSError, ValueError) as exc:
                 raise DatasetError(
                     f"Could not read the environment map `{lt.source}` of `--example`: {exc}"
@@ -76,7 +85,7 @@ def _lightings(
     from gaffer_diffusion.conditioning import lighting_from_envmap
     from gaffer_envmap.bundled import bundled_hdris, read_bundled_hdri
 
-    envmaps = _Envmaps()
+    envmaps = _Envmaps(config.sanitize)
     w2c = torch.tensor(example.w2c_blender[None])  # [1, 3, 4], the input view's camera
     jobs: list[_Lighting] = []
     for p in example.pairs:

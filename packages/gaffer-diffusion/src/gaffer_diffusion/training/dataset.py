@@ -52,6 +52,7 @@ from gaffer_data.dataset import (
     read_authors_object,
 )
 from gaffer_data.dataset import DatasetKind as DatasetKind  # re-exported: it moved to gaffer-data
+from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.preprocess import load_rgba_on_white, object_square, read_alpha
 from gaffer_diffusion.training.config import DataConfig, LightingCompat
 from gaffer_diffusion.training.errors import DataError
@@ -231,11 +232,26 @@ def split_object_ids(
     """Deterministic (train, val) split: the `num_val` ids with the smallest sha256(salt + id).
 
     Independent of the order and of ids added later (an object never moves from train to val).
-    At least one object always stays in the training split.
+
+    Raises:
+        ConfigError: when `num_val` (`data.val_objects`) is not below the number of objects: holding
+            them all out would leave nothing to train on (it used to be cut silently to
+            `len(object_ids) - 1`, so `val_objects: 50` on 12 objects trained on 1, issue 17).
     """
+    if num_val > 0 and num_val >= len(object_ids):
+        n = len(object_ids)
+        fix = (
+            f"pass `data.val_objects` of at most {n - 1} (e.g. {max(1, n // 10)})"
+            if n > 1
+            else "render more objects (at least 2)"
+        )
+        raise ConfigError(
+            f"`data.val_objects` is {num_val}, but the dataset (`data.root`) holds {n} object(s): "
+            f"holding out {num_val} would leave none to train on. {fix.capitalize()}, set it to 0 "
+            "(no validation), or hold out a separate `data.val_root`."
+        )
     ranked = sorted(object_ids, key=lambda i: hashlib.sha256(f"{salt}:{i}".encode()).hexdigest())
-    n_val = min(num_val, max(len(ranked) - 1, 0))
-    val = set(ranked[:n_val])
+    val = set(ranked[:num_val])
     return (
         tuple(i for i in sorted(object_ids) if i not in val),
         tuple(i for i in sorted(object_ids) if i in val),
