@@ -29,8 +29,6 @@ from PIL import Image
 from gaffer_diffusion.app.config import AppConfig, ModelChoice
 from gaffer_diffusion.conditioning import (
     CompatMode,
-    LightingMaps,
-    RelightingConditions,
     lighting_from_envmap,
 )
 from gaffer_diffusion.demo import LoadedModel, load_model, sampling_for
@@ -47,7 +45,7 @@ from gaffer_diffusion.photo import (
     read_mask,
     read_photo,
 )
-from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig
+from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, relight_in_batches
 
 logger = logging.getLogger(__name__)
 
@@ -422,16 +420,17 @@ class Engine:
         prepared = photo.prepared.model_input
         out: list[np.ndarray] = []
         with self._sample_lock:
-            for lo in range(0, n, BATCH_SIZE):
-                hi = min(lo + BATCH_SIZE, n)
-                cond = RelightingConditions(
-                    image=prepared.image.expand(hi - lo, -1, -1, -1),
-                    lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
-                    mask=prepared.mask.expand(hi - lo, -1, -1, -1),
-                )
-                # one seed for every frame: the light moves, the noise does not (less flicker)
-                result = m.pipe(cond, sampling, seeds=[seed] * (hi - lo))
-                for img in result.images.cpu():
+            # one seed for every frame: the light moves, the noise does not (less flicker)
+            for batch in relight_in_batches(
+                m.pipe,
+                prepared.image,
+                lighting,
+                sampling,
+                seeds=seed,
+                batch_size=BATCH_SIZE,
+                mask=prepared.mask,
+            ):
+                for img in batch.output.images.cpu():
                     if output_size == "model":
                         out.append(model_crop(img))
                     else:

@@ -104,9 +104,8 @@ def _relight(args: argparse.Namespace) -> int:
     # the photo and its mask are read and checked before any weights load
     stem = args.out.with_suffix("")
     photo, alpha, mask_note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
-    from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
     from gaffer_diffusion.photo import prepare_photo
-    from gaffer_diffusion.pipelines import RelightPipeline
+    from gaffer_diffusion.pipelines import RelightPipeline, relight_in_batches
 
     _device(args)  # a CUDA device torch cannot use is refused before the weights load
     model = _load_model(args.checkpoint, args.base_model)
@@ -117,20 +116,21 @@ def _relight(args: argparse.Namespace) -> int:
     sampling = _sampling(args)
     n = lighting.batch_size
     frames: list[np.ndarray] = []
+    model_in = prepared.model_input
     with _progress(n, "relight") as bar:
-        for lo in range(0, n, args.batch_size):
-            hi = min(lo + args.batch_size, n)
-            model_in = prepared.model_input
-            cond = RelightingConditions(
-                image=model_in.image.expand(hi - lo, -1, -1, -1),
-                lighting=LightingMaps(ldr=lighting.ldr[lo:hi], hdr=lighting.hdr[lo:hi]),
-                mask=None if args.full_frame else model_in.mask.expand(hi - lo, -1, -1, -1),
-            )
-            # the same seed for every frame: the light moves, the noise does not (less flicker)
-            out = pipe(cond, sampling, seeds=[args.seed] * (hi - lo))
-            for j, relit in enumerate(out.images.cpu()):
-                frames.append(_finish(args, prepared, relit, args.envmap, (lo + j, n)))
-            bar.update(hi - lo)
+        # the same seed for every frame: the light moves, the noise does not (less flicker)
+        for batch in relight_in_batches(
+            pipe,
+            model_in.image,
+            lighting,
+            sampling,
+            seeds=args.seed,
+            batch_size=args.batch_size,
+            mask=None if args.full_frame else model_in.mask,
+        ):
+            for j, relit in enumerate(batch.output.images.cpu()):
+                frames.append(_finish(args, prepared, relit, args.envmap, (batch.start + j, n)))
+            bar.update(batch.stop - batch.start)
     notes = "; ".join(
         x for x in (_size_note(args, frames[0]), _background_note(args), mask_note) if x
     )

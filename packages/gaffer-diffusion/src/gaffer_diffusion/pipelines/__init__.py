@@ -1,5 +1,6 @@
 """Inference pipelines: `RelightPipeline` (single-image relighting, paper §3.2)."""
 
+from gaffer_diffusion.pipelines.batched import RelightBatch, relight_in_batches
 from gaffer_diffusion.pipelines.config import (
     AttentionBackend,
     DtypeName,
@@ -13,8 +14,10 @@ __all__ = [
     "AttentionBackend",
     "DtypeName",
     "NonFinitePolicy",
+    "RelightBatch",
     "RelightOutput",
     "RelightPipeline",
     "RuntimeConfig",
     "SamplingConfig",
+    "relight_in_batches",
 ]

@@ -16,10 +16,15 @@ from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
-from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
+from gaffer_diffusion.conditioning import LightingMaps
 from gaffer_diffusion.metrics import psnr
 from gaffer_diffusion.models.model import NeuralGafferModel
-from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
+from gaffer_diffusion.pipelines import (
+    RelightPipeline,
+    RuntimeConfig,
+    SamplingConfig,
+    relight_in_batches,
+)
 from gaffer_diffusion.training.config import LightingCompat, ValidationConfig
 from gaffer_diffusion.training.dataset import RelightTrainDataset, batch_lighting
 from gaffer_diffusion.training.ema import EMAModel
@@ -160,17 +165,17 @@ def validate(
         compat=compat,
         device=device,
     )
-    preds = []
-    for lo in range(0, valset.size, config.batch_size):
-        hi = min(lo + config.batch_size, valset.size)
-        cond = RelightingConditions(
-            image=valset.input_images[lo:hi].to(device),
-            lighting=LightingMaps(ldr=ldr_all[lo:hi], hdr=hdr_all[lo:hi]),
-            mask=None if valset.input_masks is None else valset.input_masks[lo:hi].to(device),
-        )
-        out = pipe(cond, sampling, seeds=[config.seed + i for i in range(lo, hi)])
-        preds.append(out.images.float().cpu())
-    pred = torch.cat(preds)
+    batches = relight_in_batches(
+        pipe,
+        valset.input_images,
+        LightingMaps(ldr=ldr_all, hdr=hdr_all),
+        sampling,
+        seeds=[config.seed + i for i in range(valset.size)],
+        batch_size=config.batch_size,
+        mask=valset.input_masks,
+        device=device,
+    )
+    pred = torch.cat([b.output.images.float().cpu() for b in batches])
     # 8-bit like saved predictions (the authors score PNGs)
     pred = torch.round(pred * 255.0) / 255.0
     p = psnr(pred, valset.target_images)
