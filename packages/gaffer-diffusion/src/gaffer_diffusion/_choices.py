@@ -7,6 +7,8 @@ loads a model, so that a refusal takes well under a second (issue 17). The modul
 
 from typing import Literal
 
+from gaffer_envmap.compat_mode import Compat
+
 OutputSize = Literal["input", "model"]
 """`input`: the photo's own size, object pasted back (default); `model`: the model's square crop."""
 
@@ -19,8 +21,10 @@ Background = Literal["input", "envmap"]
 BACKDROP_FOV_DEG = 39.6
 """Horizontal field of view of the `--background envmap` camera: Blender's default 50 mm lens on 36 mm."""
 
-PrepareCompat = Literal["default", "neural-gaffer"]
-"""How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps."""
+PrepareCompat = Compat
+"""How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps.
+The same two modes, with the same meaning (gaffer's corrected pipeline or the authors' bit for bit), as
+the lighting encoding: `gaffer_envmap.compat_mode.Compat` (issue 14), not spelled out again."""
 
 SchedulerName = Literal["ddim", "dpmsolver++", "unipc"]
 """Sampler names accepted by `make_scheduler` and the pipeline."""

@@ -34,6 +34,7 @@ from safetensors.torch import load_file
 from transformers import CLIPVisionModelWithProjection
 
 from gaffer_diffusion._choices import MANIFEST_NAME as MANIFEST_NAME  # re-exported
+from gaffer_diffusion._schema_header import check_schema_header
 from gaffer_diffusion._version import __version__
 from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import CheckpointMismatchError, CheckpointNotFoundError
@@ -467,16 +468,14 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
     )
     how = f"{root} should have been written by `gaffer_diffusion.loading.save_pretrained`."
     manifest = _read_json(root / MANIFEST_NAME, f"the manifest `{MANIFEST_NAME}`", how)
-    if manifest.get("schema") != MANIFEST_SCHEMA:
-        raise CheckpointMismatchError(
-            f"{root / MANIFEST_NAME} has schema {manifest.get('schema')!r}, expected {MANIFEST_SCHEMA!r}."
-        )
-    major = str(manifest.get("schema_version", "")).split(".")[0]
-    if major != MANIFEST_SCHEMA_VERSION.split(".")[0]:
-        raise CheckpointMismatchError(
-            f"{root / MANIFEST_NAME} has schema_version {manifest.get('schema_version')!r}; this "
-            f"gaffer-diffusion reads {MANIFEST_SCHEMA_VERSION.split('.')[0]}.x. Upgrade gaffer-diffusion."
-        )
+    check_schema_header(
+        manifest,
+        schema=MANIFEST_SCHEMA,
+        version=MANIFEST_SCHEMA_VERSION,
+        where=str(root / MANIFEST_NAME),
+        error=CheckpointMismatchError,
+        advice=" Upgrade gaffer-diffusion.",
+    )
     unet_cfg = _read_json(root / "unet" / "config.json", "the UNet config `unet/config.json`", how)
     weights = _find_weights(root / "unet", DIFFUSERS_WEIGHT_FILES)
     if weights is None:

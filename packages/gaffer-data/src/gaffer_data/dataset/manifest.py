@@ -32,6 +32,7 @@ from gaffer_data.dataset.schema import (
     ViewRecord,
 )
 from gaffer_data.errors import GafferSchemaWarning, ManifestError, SchemaVersionError
+from gaffer_envmap.schema_header import parse_schema_version, schema_header_problem
 
 
 def sha256_file(path: Path, chunk: int = 1 << 20) -> str:
@@ -48,18 +49,9 @@ def producer() -> Producer:
     return Producer(package="gaffer-data", version=__version__)
 
 
-def _parse_version(text: object, where: str) -> tuple[int, int]:
-    try:
-        major, minor = str(text).split(".")
-        return int(major), int(minor)
-    except ValueError as exc:
-        raise ManifestError(
-            f"`schema_version` in {where} is {text!r}; expected 'MAJOR.MINOR' such as '1.0'."
-        ) from exc
-
-
 def check_schema(data: dict[str, Any], *, schema: str, version: str, where: str) -> tuple[int, int]:
-    """Validate a manifest header against the schema this reader understands.
+    """Validate a manifest header against the schema this reader understands (the shared check,
+    `gaffer_envmap.schema_header`, with gaffer-data's errors and advice).
 
     Args:
         data: the parsed JSON object.
@@ -74,22 +66,27 @@ def check_schema(data: dict[str, Any], *, schema: str, version: str, where: str)
         SchemaVersionError: different schema name or MAJOR version.
         ManifestError: missing or malformed header.
     """
-    if not isinstance(data, dict) or "schema" not in data or "schema_version" not in data:
+    problem = schema_header_problem(data, schema=schema, version=version)
+    if problem == "no_header":
         raise ManifestError(
             f"{where} has no `schema`/`schema_version` header; it is not a gaffer manifest."
         )
-    if data["schema"] != schema:
+    if problem == "foreign_schema":
         raise SchemaVersionError(
             f"{where} has `schema`={data['schema']!r}, expected {schema!r}; pass the right file."
         )
-    got = _parse_version(data["schema_version"], where)
-    ours = _parse_version(version, "this reader")
-    if got[0] != ours[0]:
+    got = parse_schema_version(data["schema_version"])
+    if got is None:  # "malformed_version"
+        raise ManifestError(
+            f"`schema_version` in {where} is {data['schema_version']!r}; expected 'MAJOR.MINOR' "
+            "such as '1.0'."
+        )
+    if problem == "other_major":
         raise SchemaVersionError(
             f"{where} has `schema_version`={data['schema_version']!r} but this gaffer-data reads "
             f"{version}; install a gaffer-data whose reader matches MAJOR version {got[0]}."
         )
-    if got[1] > ours[1]:
+    if problem == "newer_minor":
         warnings.warn(
             f"{where} has `schema_version`={data['schema_version']!r}, newer than {version}; "
             "unknown fields are ignored (upgrade gaffer-data to read them).",

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gaffer_diffusion._schema_header import check_schema_header
 from gaffer_diffusion._version import __version__
 from gaffer_diffusion.training.errors import ResumeError
 
@@ -76,15 +77,9 @@ class TrainState:
         Raises:
             ResumeError: foreign schema, other MAJOR version or missing fields.
         """
-        if data.get("schema") != STATE_SCHEMA:
-            raise ResumeError(
-                f"{where} has schema {data.get('schema')!r}, expected {STATE_SCHEMA!r}."
-            )
-        if str(data.get("schema_version", "")).split(".")[0] != STATE_SCHEMA_VERSION.split(".")[0]:
-            raise ResumeError(
-                f"{where} has schema_version {data.get('schema_version')!r}; this gaffer-diffusion "
-                f"reads {STATE_SCHEMA_VERSION.split('.')[0]}.x."
-            )
+        check_schema_header(
+            data, schema=STATE_SCHEMA, version=STATE_SCHEMA_VERSION, where=where, error=ResumeError
+        )
         names = {f.name for f in dataclasses.fields(cls)}
         try:
             return cls(**{k: v for k, v in data.items() if k in names})
