@@ -5,8 +5,8 @@ uniformly random direction, so a random sub-pixel position; black sky) into a 25
 (layout "neural-gaffer-camera") for a uniformly random world-to-camera rotation R. Pipelines:
 
 - `bilinear`: `rotate_to_camera(filter="bilinear")`;
-- `conservative ss1, ss2`: `rotate_to_camera(filter="conservative", supersample=s)`, the power-exact
-  default since issue 18 (torch path, the fused kernel serves `encode_lighting` only);
+- `conservative ss1, ss2`: `rotate_to_camera(filter="conservative", supersample=s)`; ss2 is the
+  power-exact default since issue 18 (torch path, the fused kernel serves `encode_lighting` only);
 - `area ss1..ss4`: `rotate_to_camera(filter="area", supersample=s)` (with this source and output size the
   pre-downsample has nothing to do, so ss1 may coincide with bilinear; the JSON records whether it does);
 - `compat linear`: the authors' geometry on linear radiance: `compat.rotate_neural_gaffer` at source
@@ -21,7 +21,8 @@ scale cannot move the mean light direction, so only the power error changes.
 Measured per map: time (interleaved repetitions over a batch); |P_out / P_in - 1| with P = sum(L * Omega)
 over each grid; and the angle between R @ d_sun_world and (i) the output's mean light direction (first
 moment, sum(L * Omega * d_cam) over the 256x256 grid) and (ii) the centroid of its brightest pixels
-(luminance >= half the peak). Results: JSON + PNG under benchmarks/results/ (benchmarks/README.md).
+(luminance >= half the peak). And per pipeline, a constant map (radiance 1) through the first 4 rotations:
+max and rms |out - 1| (a filter's own texture, e.g. the conservative filter's per-texel gain ripple). Results: JSON + PNG under benchmarks/results/ (benchmarks/README.md).
 
 Run: `python benchmarks/bench_envmap_filters.py [--quick] [--update-baseline]`.
 """
@@ -229,11 +230,26 @@ def evaluate(
         ):
             d_mom.append(angle_deg(m, t))
             d_cen.append(angle_deg(c, t))
+    # A flat map must stay flat: a filter's own texture (the conservative filter's per-texel gain
+    # ripples where texels are read unevenly) shows here and nowhere else. Same rotations, value 1.
+    n_flat = min(FLAT_POSES, len(suns))
+    flat = torch.ones((n_flat, *suns.shape[1:]), dtype=suns.dtype)
+    dev = (run(flat, rots[:n_flat], power(flat, OMEGA_SRC)).double() - 1.0).abs()
     return {
         "power_error": summary(np.array(p_err)),
         "direction_error_deg_first_moment": summary(np.array(d_mom)),
         "direction_error_deg_bright_centroid": summary(np.array(d_cen)),
+        "flat_map_deviation": {
+            "max": float(dev.max()),
+            "rms": float(dev.pow(2).mean().sqrt()),
+            "p99": float(torch.quantile(dev.flatten()[:: max(1, dev.numel() // 2_000_000)], 0.99)),
+            "poses": n_flat,
+        },
     }
+
+
+FLAT_POSES = 4
+"""Poses of the flat-map check (a constant map of radiance 1 through each pipeline)."""
 
 
 def time_per_map(
@@ -382,8 +398,8 @@ def readme_table(payload: dict[str, Any]) -> str:
         f"{payload['config']['suns']} suns, timing batches of {payload['config']['timing_batch']}.",
         "",
         "| pipeline | renorm | ms/map | power error median / p90 | direction error (first moment) "
-        "median / p90 | direction error (bright centroid) median |",
-        "|---|---|---|---|---|---|",
+        "median / p90 | direction error (bright centroid) median | flat map max / rms deviation |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in payload["results"]:
         pe = r["power_error"]
@@ -392,7 +408,8 @@ def readme_table(payload: dict[str, Any]) -> str:
         lines.append(
             f"| {r['label']} | {'on' if r['renormalize'] else 'off'} | {r['ms_per_map']['median']:.1f} "
             f"| {pe['median']:.1e} / {pe['p90']:.1e} | {de['median']:.3f}° / {de['p90']:.3f}° "
-            f"| {dc['median']:.3f}° |"
+            f"| {dc['median']:.3f}° | {r['flat_map_deviation']['max']:.1%} / "
+            f"{r['flat_map_deviation']['rms']:.2%} |"
         )
     floor = payload["source_grid_direction_floor_deg"]
     lines += [

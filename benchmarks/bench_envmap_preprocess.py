@@ -41,6 +41,7 @@ SRC_HEIGHT = 256  # the authors pre-resized training maps to 512x256 (reference 
 TARGET_DEFAULT_RATIO = 30.0  # issue: default mode >= 30x their maps/s on the 2-core CPU
 TARGET_COMPAT_RATIO = 5.0  # issue 18: compat mode >= 5x theirs
 TARGET_GPU_MAPS_PER_S = 100_000.0
+DEFAULT_SUPERSAMPLE = 2  # encode_lighting's default (filter "conservative")
 
 Pipeline = Literal["theirs", "theirs+png", "compat", "default"]
 
@@ -208,7 +209,7 @@ def scenarios_for(quick: bool) -> list[Scenario]:
             Scenario(pipeline="compat", batch_size=1, threads=1),
             Scenario(pipeline="default", batch_size=1, supersample=1, threads=1),
             Scenario(pipeline="default", batch_size=1, supersample=2, threads=1),
-            Scenario(pipeline="default", batch_size=32, supersample=1, threads=1),
+            Scenario(pipeline="default", batch_size=32, supersample=2, threads=1),
             Scenario(pipeline="default", filter="area", supersample=1, threads=1),
         ]
     if torch.cuda.is_available():
@@ -327,7 +328,8 @@ def readme_table(payload: dict[str, Any]) -> str:
     fid = payload["fidelity_theirs_vs_compat"]
     lines += [
         "",
-        f"Targets: default ≥ {t['default_vs_theirs']['target']:g}× theirs, best measured "
+        f"Targets: default ({t['default_vs_theirs']['setting']}) ≥ {t['default_vs_theirs']['target']:g}× "
+        f"theirs one map at a time: {t['default_vs_theirs']['one_map_at_a_time']:.2f}×, best batch "
         f"{t['default_vs_theirs']['best_measured']:.2f}× (met: {t['default_vs_theirs']['met']}); "
         f"compat ≥ {t['compat_vs_theirs']['target']:g}× theirs, worst measured "
         f"{t['compat_vs_theirs']['worst_measured']:.2f}× (met: {t['compat_vs_theirs']['met']}); "
@@ -377,20 +379,30 @@ def main(argv: list[str] | None = None) -> int:
             }
         )
 
-    def ratio(pipeline: str) -> list[float]:
+    def ratio(pipeline: str, **match: Any) -> list[float]:
         return [
             r["ratio_vs_theirs"]["median"]
             for r in results
-            if r["pipeline"] == pipeline and r["device"] == "cpu" and not r["threads"]
+            if r["pipeline"] == pipeline
+            and r["device"] == "cpu"
+            and not r["threads"]
+            and all(r[k] == v for k, v in match.items())
         ]
 
-    best_default = max(ratio("default"))
+    # The default encoding is what `encode_lighting` does without options: the conservative filter at
+    # supersample 2 (issue 18). The other default-mode rows (ss1, area) are shown beside it.
+    best_default = max(ratio("default", filter="conservative", supersample=DEFAULT_SUPERSAMPLE))
+    default_b1 = ratio(
+        "default", filter="conservative", supersample=DEFAULT_SUPERSAMPLE, batch_size=1
+    )
     gpu_rates = [r["maps_per_s"]["median"] for r in results if r["device"] == "cuda"]
     targets = {
         "default_vs_theirs": {
             "target": TARGET_DEFAULT_RATIO,
+            "setting": f"conservative, supersample {DEFAULT_SUPERSAMPLE} (encode_lighting's default)",
+            "one_map_at_a_time": round(default_b1[0], 3) if default_b1 else None,
             "best_measured": round(best_default, 3),
-            "met": best_default >= TARGET_DEFAULT_RATIO,
+            "met": bool(default_b1) and default_b1[0] >= TARGET_DEFAULT_RATIO,
         },
         "compat_vs_theirs": {
             "target": TARGET_COMPAT_RATIO,

@@ -296,6 +296,112 @@ def _stage_taps(
 
 
 @no_type_check
+def _stage_taps_band(
+    uu: np.ndarray,
+    yy: np.ndarray,
+    band_lo: int,
+    band_hi: int,
+    band_start: int,
+    width: int,
+    i0: np.ndarray,
+    i1: np.ndarray,
+    i2: np.ndarray,
+    i3: np.ndarray,
+    w0: np.ndarray,
+    w1: np.ndarray,
+    w2: np.ndarray,
+    w3: np.ndarray,
+    slow: np.ndarray,
+) -> None:
+    """`_stage_taps` for sub-samples whose two rows lie in the band [band_lo, band_hi) of whole rows
+    (no pole groups: `width` cells a row, row r starting at band_start + (r - band_lo) width), written
+    without table lookups so that LLVM vectorises it (a gather of the row table keeps the loop scalar on
+    this CPU). Every other sample (pole rows, pole crossings) is flagged in `slow` for the scalar
+    `_stage_fix_cover`, which overwrites its taps."""
+    fw = _f(width)
+    for s in range(uu.shape[0]):
+        u = uu[s]
+        y = yy[s]  # >= -1/2
+        y0 = np.int32(y + _ONE) - np.int32(1)
+        fy = y - _f(y0)
+        out = (y0 < band_lo) | (y0 + 1 >= band_hi)
+        slow[s] = out
+        x = u * fw - _HALF
+        xi = np.int32(x + _ONE) - np.int32(1)
+        fx = x - _f(xi)
+        j0 = xi + width if xi < 0 else (xi - width if xi >= width else xi)
+        j1 = j0 + 1 if j0 + 1 < width else j0 + 1 - width
+        r0 = min(max(y0, band_lo), band_hi - 2)  # kept in range for flagged samples too
+        base = band_start + (r0 - band_lo) * width
+        i0[s] = base + j0
+        i1[s] = base + j1
+        i2[s] = base + width + j0
+        i3[s] = base + width + j1
+        w0[s] = (_ONE - fy) * (_ONE - fx)
+        w1[s] = (_ONE - fy) * fx
+        w2[s] = fy * (_ONE - fx)
+        w3[s] = fy * fx
+
+
+@no_type_check
+def _stage_fix_cover(
+    uu: np.ndarray,
+    yy: np.ndarray,
+    cells: np.ndarray,
+    starts: np.ndarray,
+    slow: np.ndarray,
+    i0: np.ndarray,
+    i1: np.ndarray,
+    i2: np.ndarray,
+    i3: np.ndarray,
+    w0: np.ndarray,
+    w1: np.ndarray,
+    w2: np.ndarray,
+    w3: np.ndarray,
+    w_s: np.ndarray,
+    cover: np.ndarray,
+) -> None:
+    """Taps of the flagged samples through the row table (`_stage_taps`' arithmetic), then every
+    sample's weights times w_s scattered into the coverage C_g (float64): the one scalar loop."""
+    he = cells.shape[0]
+    for s in range(uu.shape[0]):
+        if slow[s]:
+            u = uu[s]
+            y = yy[s]
+            y0 = np.int32(y + _ONE) - np.int32(1)
+            fy = y - _f(y0)
+            r0 = max(y0, np.int32(0))
+            u0 = u + _HALF if y0 < 0 else u
+            n0 = cells[r0]
+            x = u0 * _f(n0) - _HALF
+            xi = np.int32(x + _ONE) - np.int32(1)
+            fx0 = x - _f(xi)
+            j0 = xi + n0 if xi < 0 else (xi - n0 if xi >= n0 else xi)
+            j1 = j0 + 1 if j0 + 1 < n0 else j0 + 1 - n0
+            r1 = min(y0 + np.int32(1), np.int32(he - 1))
+            u1 = u + _HALF if y0 + 1 >= he else u
+            n1 = cells[r1]
+            x = u1 * _f(n1) - _HALF
+            xi = np.int32(x + _ONE) - np.int32(1)
+            fx1 = x - _f(xi)
+            k0 = xi + n1 if xi < 0 else (xi - n1 if xi >= n1 else xi)
+            k1 = k0 + 1 if k0 + 1 < n1 else k0 + 1 - n1
+            i0[s] = starts[r0] + j0
+            i1[s] = starts[r0] + j1
+            i2[s] = starts[r1] + k0
+            i3[s] = starts[r1] + k1
+            w0[s] = (_ONE - fy) * (_ONE - fx0)
+            w1[s] = (_ONE - fy) * fx0
+            w2[s] = fy * (_ONE - fx1)
+            w3[s] = fy * fx1
+        ws_ = np.float64(w_s[s])
+        cover[i0[s]] += ws_ * w0[s]
+        cover[i1[s]] += ws_ * w1[s]
+        cover[i2[s]] += ws_ * w2[s]
+        cover[i3[s]] += ws_ * w3[s]
+
+
+@no_type_check
 def _stage_gains(
     lbar: np.ndarray, cover: np.ndarray, omega_cell: np.ndarray, corrected: np.ndarray
 ) -> int:
@@ -459,6 +565,8 @@ _jit = njit(fastmath=True, cache=True, nogil=True, error_model="numpy")
 _stage_cells = _jit(_stage_cells)
 _stage_uv = _jit(_stage_uv)
 _stage_taps = _jit(_stage_taps)
+_stage_taps_band = _jit(_stage_taps_band)
+_stage_fix_cover = _jit(_stage_fix_cover)
 _stage_gains = _jit(_stage_gains)
 _stage_gather = _jit(_stage_gather)
 _stage_encode = _jit(_stage_encode)
@@ -492,6 +600,7 @@ def _encode_split(
     inv_om,
     ssv,
     ssu,
+    band,
     chunks,
     ldr,
     hdr,
@@ -517,17 +626,36 @@ def _encode_split(
     w1 = np.empty(n_s, np.float32)
     w2 = np.empty(n_s, np.float32)
     w3 = np.empty(n_s, np.float32)
+    slow = np.empty(n_s, np.bool_)
     covers = np.zeros((chunks, n_cells), np.float64)
     fhe = _f(cells.shape[0])
     for c in prange(chunks):
         lo = (rows_s * c // chunks) * ws
         hi = (rows_s * (c + 1) // chunks) * ws
         _stage_uv(dx[lo:hi], dy[lo:hi], dz[lo:hi], m, fhe, uu[lo:hi], yy[lo:hi])
-        _stage_taps(
+        _stage_taps_band(
+            uu[lo:hi],
+            yy[lo:hi],
+            band[0],
+            band[1],
+            band[2],
+            band[3],
+            i0[lo:hi],
+            i1[lo:hi],
+            i2[lo:hi],
+            i3[lo:hi],
+            w0[lo:hi],
+            w1[lo:hi],
+            w2[lo:hi],
+            w3[lo:hi],
+            slow[lo:hi],
+        )
+        _stage_fix_cover(
             uu[lo:hi],
             yy[lo:hi],
             cells,
             starts,
+            slow[lo:hi],
             i0[lo:hi],
             i1[lo:hi],
             i2[lo:hi],
@@ -610,6 +738,7 @@ def _encode_batch(
     inv_om,
     ssv,
     ssu,
+    band,
     ldr,
     hdr,
 ):  # type: ignore[no-untyped-def]
@@ -634,10 +763,30 @@ def _encode_batch(
             inv_om,
             ssv,
             ssu,
+            band,
             1,
             ldr[b],
             hdr[b],
         )
+
+
+def _whole_row_band(cells: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
+    """(first row, end row, first cell, width) of the longest run of whole rows (no pole groups), int32;
+    an empty band (2 rows needed) flags every sample for the scalar path."""
+    best = (0, 0)
+    r = 0
+    while r < len(cells):
+        if cells[r] == width:
+            e = r
+            while e < len(cells) and cells[e] == width:
+                e += 1
+            if e - r > best[1] - best[0]:
+                best = (r, e)
+            r = e
+        else:
+            r += 1
+    lo, hi = best if best[1] - best[0] >= 2 else (0, 0)
+    return np.array([lo, hi, starts[lo] if hi > lo else 0, width], np.int32)
 
 
 @lru_cache(maxsize=16)
@@ -664,6 +813,7 @@ def _plan(src_h: int, size: int, ss: int) -> tuple:  # type: ignore[type-arg]
         (1 / row_solid_angle(size, size)).astype(np.float32),
         ssv,
         ssu,
+        _whole_row_band(cells, starts, 2 * hs),
     )
 
 
