@@ -111,3 +111,28 @@ def test_directionality_is_zero_for_a_uniform_sky_and_two_for_a_sun() -> None:
     assert directionality(zenith, about_up=True) == pytest.approx(0.0, abs=1e-3)
     horizon = disc_sun_map(256, np.array([1.0, 0.0, 0.0]), radius_deg=2.0, radiance=1e3)
     assert directionality(horizon, about_up=True) == pytest.approx(2.0, rel=0.01)
+
+
+def test_reconstruct_sh_inverts_project_sh_on_a_band_limited_map() -> None:
+    # a known order-2 signal (9 coefficients per channel) drawn on the map's own grid: projecting it
+    # recovers the coefficients, and reconstructing them gives back the map, up to quadrature error
+    from gaffer_envmap.conventions import direction_grid
+    from gaffer_envmap.sh import reconstruct_sh
+
+    rng = np.random.default_rng(3)
+    coeffs = rng.normal(size=(9, 3))
+    coeffs[0] = 4.0  # keep the radiance positive-ish like a real map; the test does not need it
+    dirs = direction_grid(128, 256)
+    radiance = reconstruct_sh(coeffs, dirs)
+    assert radiance.shape == (128, 256, 3)
+    # the direct sum over the basis, independently of reconstruct_sh's order inference
+    np.testing.assert_allclose(radiance, np.einsum("hwk,kc->hwc", sh_basis(dirs, 2), coeffs))
+    env = EnvironmentMap(radiance_linear=radiance.astype(np.float32))
+    back = project_sh(env, 2)
+    np.testing.assert_allclose(back, coeffs, atol=2e-3)
+    np.testing.assert_allclose(reconstruct_sh(back, dirs), radiance, atol=1e-2)
+    # a single band-1 coefficient (index 1: y) is sqrt(3 / 4 pi) times the direction's y
+    one = np.zeros((4, 3))
+    one[1] = 1.0
+    d = np.array([[0.6, 0.8, 0.0]])
+    np.testing.assert_allclose(reconstruct_sh(one, d)[0], math.sqrt(3 / (4 * math.pi)) * 0.8)

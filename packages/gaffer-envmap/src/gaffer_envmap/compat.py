@@ -56,22 +56,14 @@ def _local_dirs(height: int, width: int) -> Tensor:
     ).reshape(-1, 3)
 
 
-def spin_matrix_authors(spin_index: int, num_frames: int) -> Tensor:
-    """Rz(-2 pi k / N) as the authors build it for turntable frame k of N (multiplied on the right)."""
-    a = -2 * math.pi * spin_index / num_frames
-    return torch.tensor(
-        [[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]],
-        dtype=torch.float64,
-    )
-
-
 def spin_matrices_neural_gaffer(
     spin_deg: "float | int | Tensor", count: int, device: torch.device
 ) -> Tensor:
     """`[count, 3, 3]` right factors Rz(-D) for `spin_deg` D (scalar or `[count]`): frame k = D N / 360.
 
-    Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]], the same matrix as `spin_matrix_authors`
-    with 2 pi k / N = D in radians, so `encode --compat neural-gaffer --spin D` is their frame k for any N.
+    Rz(a) = [[cos a, -sin a, 0], [sin a, cos a, 0], [0, 0, 1]], the matrix the authors build for turntable
+    frame k of N with a = -2 pi k / N = -D in radians, so `encode --compat neural-gaffer --spin D` is their
+    frame k for any N.
 
     Raises:
         ShapeError: when `spin_deg` is neither a scalar nor one angle per pose.
