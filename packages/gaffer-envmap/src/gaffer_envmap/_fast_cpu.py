@@ -28,7 +28,7 @@ once (cached on disk) and needs no C compiler at install.
 import math
 import os
 from functools import lru_cache
-from typing import no_type_check
+from typing import Any, no_type_check
 
 # numba picks TBB first when it can import it; an old system TBB then only warns (and pytest turns
 # warnings into errors). The workqueue layer ships with numba, so choose it unless the user did
@@ -830,10 +830,13 @@ def encode_conservative_cpu(
     numba.set_num_threads(threads)
     mf = np.ascontiguousarray(m, np.float32)
     src = np.ascontiguousarray(src, np.float32)
+    # (argument lists: `plan` is a tuple of unknown length to the type checker)
     if b >= threads:
-        _encode_batch(src, mf, *plan, ldr, hdr)
+        batch_args: list[Any] = [src, mf, *plan, ldr, hdr]
+        _encode_batch(*batch_args)
     else:
         # Fewer maps than threads (one map at a time): split each map's stages over the threads.
         for i in range(b):
-            _encode_split(src[i], mf[i], *plan, threads, ldr[i], hdr[i])
+            split_args: list[Any] = [src[i], mf[i], *plan, threads, ldr[i], hdr[i]]
+            _encode_split(*split_args)
     return ldr, hdr
