@@ -87,6 +87,8 @@ def test_every_command_that_reads_env_maps_takes_the_shared_sanitize():
         "gaffer-envmap rotate",
         "gaffer-envmap encode",
         "gaffer-envmap augment",
+        "gaffer-data render",
+        "gaffer-data render-multiview",
         "gaffer-diffusion relight",
         "gaffer-diffusion evaluate",
         "gaffer-diffusion demo",
@@ -97,3 +99,4 @@ def test_every_command_that_reads_env_maps_takes_the_shared_sanitize():
         assert tuple(action.choices or ()) == SANITIZE_POLICIES, where
         assert "'strict' refuses any" in (action.help or ""), where  # one help text
         assert f"'{action.default}' (default)" in (action.help or ""), where
+        assert action.default == "raise", where  # the library's default everywhere (issue 17)

@@ -21,6 +21,7 @@ from gaffer_envmap.errors import (
     cli_failure,
     exit_codes_epilog,
 )
+from gaffer_envmap.sanitize import add_sanitize_argument
 
 if TYPE_CHECKING:
     from gaffer_data.config import RenderConfig
@@ -49,6 +50,7 @@ def _common_config(args: argparse.Namespace) -> dict[str, object]:
         "view_transform": args.view_transform,
         "background_visible": args.background_visible,
         "world_map_resolution": args.world_map_resolution,
+        "envmap_sanitize": args.sanitize,
         "augment": AugmentConfig(flip=not args.no_flip, yaw_steps=args.yaw_steps),
     }
 
@@ -270,6 +272,9 @@ def _info(args: argparse.Namespace) -> int:
 def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
     r.add_argument("--objects", required=True, type=Path, help="mesh folder or filter .jsonl")
     r.add_argument("--envmaps", required=True, type=Path, help="folder of .exr/.hdr lat-long maps")
+    add_sanitize_argument(
+        r, what="checked for every --envmaps map before any render; the renders use its pixels: "
+    )
     r.add_argument(
         "--out",
         required=True,

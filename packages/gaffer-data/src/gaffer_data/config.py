@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_data.errors import ConfigError
+from gaffer_envmap.sanitize import SANITIZE_POLICIES, SanitizePolicy
 
 ViewTransform = Literal["Filmic", "AgX", "Standard", "Khronos PBR Neutral", "Raw"]
 """Blender view transforms that exist in bpy 5.0 (Filmic is the paper's; it was Blender 3.2's default)."""
@@ -206,6 +207,11 @@ class RenderConfig:
         filter_width: pixel filter width in pixels (authors: 0.01, i.e. no filtering).
         view_transform: Blender view transform used for the PNGs (paper: Filmic); EXRs are linear.
         envmap_strength: world strength of the environment-map renders (paper: 1).
+        envmap_sanitize: NaN/Inf/negative pixels of the pool's maps (CLI `--sanitize`, policies of
+            `gaffer_envmap.sanitize`): every map is checked before any render starts, and the
+            worker renders the pixels this policy gives. "raise" (default): the tiny negatives of
+            lossy compression become 0, anything else refuses the run; "strict" refuses any;
+            "zero"/"clamp" repair them.
         background_visible: show the environment map behind the object in the envmap renders (the
             authors do, and mask it later); False renders a transparent film, so the alpha is the mask.
         world_map_resolution: resolution of Cycles' importance map of the environment (affects noise
@@ -239,6 +245,7 @@ class RenderConfig:
     filter_width: float = 0.01
     view_transform: ViewTransform = "Filmic"
     envmap_strength: float = 1.0
+    envmap_sanitize: SanitizePolicy = "raise"
     background_visible: bool = False
     world_map_resolution: int = 0
     seed: int = 0
@@ -272,6 +279,10 @@ class RenderConfig:
         if self.view_transform not in _VIEW_TRANSFORMS:
             raise ConfigError(
                 f"`view_transform`={self.view_transform!r} is not one of {_VIEW_TRANSFORMS}."
+            )
+        if self.envmap_sanitize not in SANITIZE_POLICIES:
+            raise ConfigError(
+                f"`envmap_sanitize`={self.envmap_sanitize!r} is not one of {SANITIZE_POLICIES}."
             )
         if self.world_map_resolution < 0:
             raise ConfigError(

@@ -22,6 +22,7 @@ __all__ = [
     "SanitizeReport",
     "add_sanitize_argument",
     "sanitize",
+    "sanitize_flag_refusal",
     "sanitize_help",
 ]
 
@@ -77,6 +78,22 @@ def add_sanitize_argument(
         choices=SANITIZE_POLICIES,
         default=default,
         help=sanitize_help(default, what=what),
+    )
+
+
+def sanitize_flag_refusal(error: Exception, policy: str) -> str:
+    """A `NonFiniteError` of `sanitize`/`read_envmap` said as a command line says it: one line naming
+    `--sanitize` and its values instead of the API's `sanitize=` keyword.
+
+    Example:
+        >>> from gaffer_envmap.errors import NonFiniteError
+        >>> sanitize_flag_refusal(NonFiniteError('`a.exr` holds 1 NaN value(s). Pass `sanitize="zero"`'), "raise")
+        '`a.exr` holds 1 NaN value(s). Pass `--sanitize zero` (set them to 0) or `--sanitize clamp` (+Inf -> brightest finite value, the rest -> 0), or repair the file (`--sanitize raise` refused it).'
+    """
+    what = str(error).split(" Pass `sanitize=")[0]
+    return (
+        f"{what} Pass `--sanitize zero` (set them to 0) or `--sanitize clamp` (+Inf -> brightest "
+        f"finite value, the rest -> 0), or repair the file (`--sanitize {policy}` refused it)."
     )
 
 

@@ -4,7 +4,7 @@
         [--sizing fixed|footprint] [--early-stopping] [--rank-selection [--rank-ladder 0.25 0.5 1]
         [--rank-tolerance DB]] [--device cuda]
     gaffer-nerf relight FIELD --data DATA --target-lighting K [--envmaps DIR | --envmap FILE|NAME]
-        [--sanitize zero|clamp|raise|strict] [--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny]
+        [--sanitize raise|strict|zero|clamp] [--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny]
         --out RELIT [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
         [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING, Any
 
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.errors import add_debug_argument, cli_failure, exit_codes_epilog
-from gaffer_envmap.sanitize import add_sanitize_argument
+from gaffer_envmap.sanitize import add_sanitize_argument, sanitize_flag_refusal
 from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
@@ -122,7 +122,7 @@ def _parser() -> argparse.ArgumentParser:
         "...), instead of --target-lighting",
     )
     r.add_argument("--envmaps", type=Path, help="folder holding the pool's env maps")
-    add_sanitize_argument(r, "zero")
+    add_sanitize_argument(r)
     r.add_argument(
         "--checkpoint",
         type=Path,
@@ -413,12 +413,8 @@ def _target_envmap(args: argparse.Namespace, scene: "MultiViewScene") -> Any:
             return load_lighting_envmap(
                 scene.lighting(args.target_lighting), args.envmaps, sanitize=args.sanitize
             )
-    except NonFiniteError as exc:
-        what = str(exc).split(" Pass `sanitize=")[0]  # the API hint, said as the flag below
-        raise ConfigError(
-            f"{what} Pass `--sanitize zero` (or `clamp`) to repair the map (`--sanitize` "
-            f"{args.sanitize} refused it)."
-        ) from exc
+    except NonFiniteError as exc:  # the API's `sanitize=` hint, said as the flag
+        raise ConfigError(sanitize_flag_refusal(exc, args.sanitize)) from exc
     raise ConfigError("Pass `--target-lighting K` (with `--envmaps DIR`) or `--envmap FILE`.")
 
 

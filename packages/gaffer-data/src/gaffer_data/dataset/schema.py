@@ -35,14 +35,17 @@ from gaffer_data.dataset.poses import CameraPoses, load_poses
 
 OBJECT_SCHEMA = "gaffer.rendered_object"
 """Schema name of an object's `manifest.json`."""
-OBJECT_SCHEMA_VERSION = "1.1"
+OBJECT_SCHEMA_VERSION = "1.2"
 """MAJOR.MINOR version this package writes and reads (see `gaffer_data.dataset.manifest`).
 
 1.1 added `ViewRecord.split`, `RenderConfig.multiview` and the `transforms` payloads (multi-view sets).
+1.2 added `RenderConfig.envmap_sanitize` (issue 17; a 1.1 manifest reads as the default "raise",
+though its maps were rendered as Blender loaded them, unsanitized).
 """
 DATASET_SCHEMA = "gaffer.render_dataset"
 """Schema name of a dataset's top-level `dataset.json`."""
-DATASET_SCHEMA_VERSION = "1.1"
+DATASET_SCHEMA_VERSION = "1.2"
+"""1.2: `config.envmap_sanitize`, as in `OBJECT_SCHEMA_VERSION`."""
 
 Split = Literal["train", "test"]
 """The split of a view in a multi-view set."""
@@ -99,9 +102,10 @@ class FileRecord:
 class EnvmapRef:
     """Which environment map (and augmentation) lit an image.
 
-    The world texture was `AugmentSpec(flip, yaw_step, num_steps).apply(read_envmap(source))` from
-    gaffer-envmap, in Blender's convention (z up, u = 0.5 - atan2(y, x) / 2pi), at world `strength`:
-    first the horizontal mirror (if `flip`), then a roll by `yaw_step / num_steps` of a turn.
+    The world texture was `AugmentSpec(flip, yaw_step, num_steps).apply(read_envmap(source,
+    sanitize=config.envmap_sanitize))` from gaffer-envmap (schema 1.2; before, the unsanitized
+    pixels), in Blender's convention (z up, u = 0.5 - atan2(y, x) / 2pi), at world `strength`: first
+    the horizontal mirror (if `flip`), then a roll by `yaw_step / num_steps` of a turn.
 
     Attributes:
         name: the pool entry's name (file stem).

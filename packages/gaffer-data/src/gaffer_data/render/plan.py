@@ -217,6 +217,37 @@ def check_pool_maps(pool: Sequence[PoolEntry], yaw_steps: int) -> None:
         )
 
 
+def check_pool_pixels(pool: Sequence[PoolEntry], policy: str = "raise") -> int:
+    """Read every map of the pool with gaffer-envmap and `policy` (`RenderConfig.envmap_sanitize`),
+    before anything is rendered: a map the policy refuses (NaN, Inf, a substantial negative under
+    "raise"; any of them under "strict") stops the run here, not per object in the workers.
+
+    The workers apply the same policy to the pixels Blender loads (`gaffer_data.render.worker`), so
+    what is rendered is what gaffer-envmap's `read_envmap(source, sanitize=policy)` gives; under
+    "raise" the tiny negatives of lossy compression are set to 0 with an INFO line.
+
+    Returns:
+        How many maps the policy changes (0: every map is clean, the policy makes no difference).
+
+    Raises:
+        InputError: a map the policy refuses (names the file, the counts and `--sanitize`).
+    """
+    from gaffer_envmap.errors import NonFiniteError
+    from gaffer_envmap.io import read_envmap
+    from gaffer_envmap.sanitize import sanitize_flag_refusal
+
+    changed = 0
+    for entry in pool:
+        try:
+            env = read_envmap(entry.path, sanitize=policy)  # type: ignore[arg-type]
+        except NonFiniteError as exc:
+            raise InputError(
+                f"`--envmaps` map {sanitize_flag_refusal(exc, policy)} Nothing was rendered."
+            ) from exc
+        changed += bool(env.metadata and "sanitize" in env.metadata)
+    return changed
+
+
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(rng.uniform(bounds[0], bounds[1]))
 

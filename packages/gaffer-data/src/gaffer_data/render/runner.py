@@ -54,6 +54,7 @@ from gaffer_data.errors import ConfigError, InputError, ManifestError
 from gaffer_data.render.plan import (
     PoolEntry,
     check_pool_maps,
+    check_pool_pixels,
     nerf_transforms,
     plan_for,
     plan_poses,
@@ -335,16 +336,30 @@ def _dataset_json(out: Path, config: RenderConfig, failures: Sequence[FailureRec
     )
 
 
-def _check_config(out: Path, config: RenderConfig) -> list[FailureRecord]:
-    """Refuse to mix configs in one folder; return the earlier failures."""
+def _check_config(
+    out: Path, config: RenderConfig, *, sanitize_moot: bool = False
+) -> list[FailureRecord]:
+    """Refuse to mix configs in one folder; return the earlier failures.
+
+    A render begun before `envmap_sanitize` was recorded resumes only when the policy changes no map
+    of the pool (`sanitize_moot`): the workers then see the pixels they saw before.
+    """
     path = out / DATASET_NAME
     if not path.is_file():
         return []
     data = read_json(path)
-    if data.get("config") != json.loads(json.dumps(config.to_dict())):
+    ours = json.loads(json.dumps(config.to_dict()))
+    theirs = data.get("config")
+    if sanitize_moot and isinstance(theirs, dict) and "envmap_sanitize" not in theirs:
+        theirs = {**theirs, "envmap_sanitize": ours["envmap_sanitize"]}
+    if theirs != ours:
+        old = theirs if isinstance(theirs, dict) else {}
+        keys = sorted(k for k in set(ours) | set(old) if old.get(k, ()) != ours.get(k, ()))
+        flag = " (`envmap_sanitize` is `--sanitize`)" if "envmap_sanitize" in keys else ""
         raise ConfigError(
-            f"`out`={str(out)!r} was rendered with a different config (see {path}); "
-            "render into a new folder or pass the same options."
+            f"`out`={str(out)!r} was rendered with a different config (see {path}; it differs in "
+            f"{', '.join(f'`{k}`' for k in keys)}); render into a new folder or pass the same "
+            f"options{flag}."
         )
     return [FailureRecord(**f) for f in data.get("failures", [])]
 
@@ -376,7 +391,8 @@ def render_dataset(
     Raises:
         ConfigError: `out` holds a render made with a different config, or
             `config.augment.yaw_steps` does not divide a map's width (`check_pool_maps`).
-        InputError: duplicate object ids, or a map that is not 2:1.
+        InputError: duplicate object ids, a map that is not 2:1, or one whose NaN/Inf/negative
+            pixels `config.envmap_sanitize` refuses (`check_pool_pixels`).
     """
     options = options or RunOptions()
     out = Path(out)
@@ -387,8 +403,11 @@ def render_dataset(
         )
     if config.lightings > 0:  # before the folder exists: a 3:1 map or --yaw-steps 7 fails here
         check_pool_maps(pool, config.augment.yaw_steps)
+        changed = check_pool_pixels(pool, config.envmap_sanitize)  # NaN/Inf/negatives
+    else:
+        changed = 0
     out.mkdir(parents=True, exist_ok=True)
-    earlier = _check_config(out, config)
+    earlier = _check_config(out, config, sanitize_moot=changed == 0)
     _dataset_json(out, config, earlier)
     start = time.perf_counter()
     todo, skipped = [], []

@@ -2,7 +2,7 @@
 
     python -m gaffer_data.render.worker --job OBJECT_DIR/_plan.json [--threads N]
 
-It imports bpy and the numpy-only modules of gaffer-envmap (`augment`, `atomic`), never pymeshlab or
+It imports bpy and the numpy-only modules of gaffer-envmap (`augment`, `atomic`, `sanitize`), never pymeshlab or
 torch (a test checks `sys.modules`), writes every image atomically and skips images that already
 exist (so a killed object resumes where it stopped), and reports progress on stdout as lines starting
 with `GAFFER_EVENT ` followed by JSON. Exit codes: 0 done, 2 bad input, 3 bpy missing, 1 other errors.
@@ -85,10 +85,34 @@ def augment_envmap_pixels(pixels: np.ndarray, ref: EnvmapRef) -> np.ndarray:
     return np.concatenate([rgb, np.ones_like(rgb[..., :1])], axis=-1)
 
 
+def sanitize_envmap_pixels(pixels: np.ndarray, policy: str, source: str) -> np.ndarray:
+    """`pixels` as Blender loaded them, with `policy` (`RenderConfig.envmap_sanitize`) applied to RGB.
+
+    The parent checked every map with gaffer-envmap's `read_envmap(source, sanitize=policy)` before
+    the run (`check_pool_pixels`); this applies the same policy to the same pixels, so the renderer
+    sees what `read_envmap` gives (under "raise": the tiny negatives of lossy compression set to 0).
+
+    Raises:
+        InputError: the policy refuses the map (it changed since the parent's check).
+    """
+    from gaffer_envmap.errors import NonFiniteError
+    from gaffer_envmap.sanitize import sanitize
+
+    pixels = np.asarray(pixels)
+    try:
+        rgb, _ = sanitize(pixels[..., :3], policy, name=source)
+    except NonFiniteError as exc:
+        raise InputError(f"environment map {exc}") from exc
+    if np.may_share_memory(rgb, pixels):  # clean: `sanitize` returned the pixels themselves
+        return pixels
+    return np.concatenate([rgb, pixels[..., 3:]], axis=-1)
+
+
 class _EnvmapCache:
     """Augmented world images, loaded once per (source, flip, yaw) and evicted least recently used."""
 
-    def __init__(self) -> None:
+    def __init__(self, sanitize: str = "raise") -> None:
+        self._sanitize = sanitize
         self._sources: OrderedDict[str, np.ndarray] = OrderedDict()
         self._images: OrderedDict[tuple[str, bool, int, int], Any] = OrderedDict()
 
@@ -105,7 +129,9 @@ class _EnvmapCache:
                 raise InputError(
                     f"environment map `{path}` is missing; restore the `--envmaps` folder."
                 )
-            self._sources[ref.source] = _scene.load_envmap_pixels(path)
+            self._sources[ref.source] = sanitize_envmap_pixels(
+                _scene.load_envmap_pixels(path), self._sanitize, ref.source
+            )
             while len(self._sources) > 2:
                 self._sources.popitem(last=False)
         pixels = augment_envmap_pixels(self._sources[ref.source], ref)
@@ -234,7 +260,7 @@ def render_plan(plan: ObjectPlan, root: Path, threads: int) -> None:
     env_background.inputs["Strength"].default_value = config.envmap_strength
     grey = _scene.grey_world(config.area_light.world_grey)
     light = _scene.add_area_light(scene)
-    cache = _EnvmapCache()
+    cache = _EnvmapCache(config.envmap_sanitize)
     scratch = root / ".scratch"
     for view in plan.views:
         _scene.set_camera_pose(camera, look_at_c2w_blender(view.camera.position))

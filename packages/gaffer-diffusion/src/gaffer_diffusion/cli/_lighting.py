@@ -61,16 +61,27 @@ def _read_w2c(path: Path) -> np.ndarray:
     return arr.astype(np.float64)
 
 
+def _read_envmap(args: argparse.Namespace, envmap: Path) -> Any:
+    """`envmap` read with `--sanitize` (numpy only); a refused map is one line naming the flag."""
+    from gaffer_envmap.errors import NonFiniteError
+    from gaffer_envmap.io import read_envmap
+    from gaffer_envmap.sanitize import sanitize_flag_refusal
+
+    try:
+        return read_envmap(envmap, sanitize=args.sanitize)
+    except NonFiniteError as exc:
+        raise InputValueError(sanitize_flag_refusal(exc, args.sanitize)) from exc
+
+
 def _envmap_lighting(
     args: argparse.Namespace, envmap: Path, size: int, frames: int = 0
 ) -> LightingMaps:
     import torch
 
     from gaffer_diffusion.conditioning import lighting_from_envmap
-    from gaffer_envmap.io import read_envmap
 
     pose = _pose(args)
-    env = read_envmap(envmap, sanitize=args.sanitize)
+    env = _read_envmap(args, envmap)
     n = max(frames, 1)
     spin = torch.arange(n, dtype=torch.float64) * (360.0 / n) if frames > 1 else 0.0
     return lighting_from_envmap(env, [pose] * n, size=size, compat=_compat(args), spin_deg=spin)
@@ -113,6 +124,7 @@ def _check_lighting_args(args: argparse.Namespace) -> None:
         checks.need_dir("--envmaps", args.envmaps, "a folder of .exr/.hdr maps")
         for m in _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps"):
             checks.envmap_file("--envmaps", m)
+            _read_envmap(args, m)  # --sanitize's refusal before any weights load
     elif args.ldr is not None or args.hdr is not None:
         if args.ldr is None or args.hdr is None or args.envmap is not None:
             raise ConfigError("Pass both `--ldr` and `--hdr` (pre-encoded maps) and no `--envmap`.")
@@ -128,7 +140,5 @@ def _check_lighting_args(args: argparse.Namespace) -> None:
         )
     else:
         _check_envmap_arg(args.envmap)
-        from gaffer_envmap.io import read_envmap
-
-        read_envmap(args.envmap, sanitize=args.sanitize)  # decoded here too: no torch, fails early
+        _read_envmap(args, args.envmap)  # decoded here too: no torch, fails early
     _pose(args)  # reads and checks --w2c, or --azimuth/--elevation (numpy only)

@@ -108,7 +108,7 @@ def _parser() -> argparse.ArgumentParser:
         help="lighting encoding; 'neural-gaffer' matches the released checkpoint (the default with "
         "--checkpoint); without one, gaffer-tiny's own ('default')",
     )
-    add_sanitize_argument(light, "zero")
+    add_sanitize_argument(light)
     r.add_argument(
         "--checkpoint",
         type=Path,

@@ -69,7 +69,7 @@ def load_lighting_envmap(
         envmap_dir: a folder holding the pool's maps.
         sanitize: NaN/Inf/negative pixels (`gaffer_envmap.read_envmap`): "raise" (default; sets
             the tiny negatives of lossy compression, which 7 of the 8 bundled HDRIs hold, to 0 and
-            refuses anything else), "strict", "zero" or "clamp" (CLI: `--sanitize`, default zero).
+            refuses anything else), "strict", "zero" or "clamp" (CLI: `--sanitize`, same default).
 
     Raises:
         DatasetNotFoundError: when the map is in none of these places (the message lists them).
