@@ -13,7 +13,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from PIL import Image
 
 from gaffer_diffusion.errors import ConfigError, MissingDependencyError
 
@@ -106,8 +105,6 @@ def write_animation(
     if fmt == "auto":
         logger.info("no MP4 encoder (ffmpeg on PATH or PyAV) is installed; writing a GIF instead")
     path = stem.with_suffix(".gif")
-    images = [Image.fromarray(np.asarray(f, np.uint8)) for f in frames]
-    images[0].save(
-        path, save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0
-    )
-    return path
+    from gaffer_diffusion.images import write_gif
+
+    return write_gif(path, frames, round(1000 / fps))

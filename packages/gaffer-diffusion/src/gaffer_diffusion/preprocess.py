@@ -24,6 +24,11 @@ from torch import Tensor
 from gaffer_diffusion import _choices
 from gaffer_diffusion.errors import InputValueError
 
+# the render readers live in the one image module; importable from here as before
+from gaffer_diffusion.images import crop_square as crop_square
+from gaffer_diffusion.images import load_rgba_on_white as load_rgba_on_white
+from gaffer_diffusion.images import read_alpha as read_alpha
+
 ALPHA_THRESHOLD = 0.5
 """Alpha above this counts as object when computing the bounding box."""
 
@@ -257,77 +262,3 @@ def object_square(alpha: np.ndarray, object_fraction: float) -> tuple[int, int, 
     top, bottom, left, right = int(ys.min()), int(ys.max()) + 1, int(xs.min()), int(xs.max()) + 1
     side = max(int(np.ceil(max(bottom - top, right - left) / object_fraction)), 1)
     return top + (bottom - top - side) // 2, left + (right - left - side) // 2, side
-
-
-def crop_square(arr: np.ndarray, box: tuple[int, int, int], fill: float) -> np.ndarray:
-    """`arr[top:top+side, left:left+side]` of an `[H, W, C]` array, padded with `fill` outside it."""
-    top, left, side = box
-    out = np.full((side, side, arr.shape[2]), fill, dtype=arr.dtype)
-    y0, x0 = max(top, 0), max(left, 0)
-    y1, x1 = min(top + side, arr.shape[0]), min(left + side, arr.shape[1])
-    if y1 > y0 and x1 > x0:
-        out[y0 - top : y1 - top, x0 - left : x1 - left] = arr[y0:y1, x0:x1]
-    return out
-
-
-def load_rgba_on_white(
-    path: Path,
-    size: int,
-    alpha_path: Path | None = None,
-    box: tuple[int, int, int] | None = None,
-) -> tuple[Float[Tensor, "3 S S"], Float[Tensor, "1 S S"]]:
-    """An sRGB PNG (straight alpha) composited on white and its alpha, cropped and resized to `size`.
-
-    The one reader of rendered views for training, evaluation and the demo, so all of them see the
-    same pixels: optional square crop `box` (`object_square`; transparent outside the image), straight
-    alpha over white in sRGB (as the authors do), then bilinear antialiased resizing of colour and
-    alpha together.
-
-    Args:
-        path: RGBA (or RGB) 8-bit image.
-        size: output side length.
-        alpha_path: a separate 8-bit mask used when the image has no alpha channel.
-        box: `(top, left, side)` crop in the image's pixels, or None for the whole image.
-
-    Returns:
-        `[3, size, size]` colour and `[1, size, size]` alpha, float32 in [0, 1].
-
-    Raises:
-        OSError: unreadable or truncated file (PIL's errors).
-        ValueError: unusable image data.
-    """
-    import torch.nn.functional as F
-
-    with Image.open(path) as im:
-        im.load()
-        rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
-        has_alpha = im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info
-    rgb, alpha = rgba[..., :3], rgba[..., 3:4]
-    if not has_alpha and alpha_path is not None:
-        with Image.open(alpha_path) as m:
-            m.load()
-            alpha = np.asarray(m.convert("L"), dtype=np.float32)[..., None] / 255.0
-        if alpha.shape[:2] != rgb.shape[:2]:
-            raise ValueError(f"mask {alpha_path} has size {alpha.shape[:2]}, image {rgb.shape[:2]}")
-    # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
-    arr = np.concatenate([rgb * alpha + (1.0 - alpha), alpha], axis=-1)
-    if box is not None:
-        arr = np.concatenate(
-            [crop_square(arr[..., :3], box, 1.0), crop_square(arr[..., 3:], box, 0.0)], -1
-        )
-    out = torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1)  # [4, h, w]
-    if tuple(out.shape[1:]) != (size, size):
-        out = F.interpolate(
-            out[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
-        )[0]
-    out = out.clamp(0.0, 1.0)
-    return out[:3].contiguous(), out[3:].contiguous()
-
-
-def read_alpha(path: Path) -> np.ndarray:
-    """`[H, W]` float32 alpha in [0, 1] of an RGBA image, or the grey values of a mask file."""
-    with Image.open(path) as im:
-        im.load()
-        if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
-            return np.asarray(im.convert("RGBA"), np.float32)[..., 3] / 255.0
-        return np.asarray(im.convert("L"), np.float32) / 255.0

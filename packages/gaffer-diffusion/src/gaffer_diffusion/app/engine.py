@@ -26,6 +26,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from gaffer_diffusion import images as image_io
 from gaffer_diffusion.app.config import AppConfig, ModelChoice
 from gaffer_diffusion.conditioning import (
     CompatMode,
@@ -183,7 +184,7 @@ class ReadyModel:
 
 def _uint8(t: torch.Tensor) -> np.ndarray:
     """`[3, H, W]` or `[1, H, W]` float in [0, 1] -> `[H, W, 3]` / `[H, W]` uint8."""
-    arr = (t.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+    arr = image_io.to_uint8(t)
     return arr[..., 0] if arr.shape[-1] == 1 else arr
 
 
@@ -486,14 +487,7 @@ def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
     """An endlessly looping GIF of `[H, W, 3]` uint8 frames (PIL, no ffmpeg needed), written atomically."""
     if not frames:
         raise InputValueError("No frames to write: ask for a turntable of 2 or more frames.")
-    images = [Image.fromarray(on_white(f)) for f in frames]
-    duration = max(round(1000.0 / fps), 20)
-    tmp = _partial(path)
-    images[0].save(
-        tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration, loop=0
-    )
-    os.replace(tmp, path)
-    return path
+    return image_io.write_gif(path, [on_white(f) for f in frames], max(round(1000.0 / fps), 20))
 
 
 Mp4Backend = Literal["ffmpeg", "pyav", "opencv"]

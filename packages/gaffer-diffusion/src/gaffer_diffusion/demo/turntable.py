@@ -5,9 +5,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.images import write_gif
 
 GIF_SCALE = 4
 """Nearest-neighbour upscale of the model-size turntable frames in the GIF, so that it is watchable."""
@@ -31,18 +31,7 @@ def _turntable_hdri(name: str | None) -> tuple[str, Any]:
 
 
 def _write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> None:
-    from gaffer_envmap.atomic import atomic_path
-
-    images = [Image.fromarray(f) for f in frames]
-    with atomic_path(path) as tmp:
-        images[0].save(
-            tmp,
-            format="GIF",
-            save_all=True,
-            append_images=images[1:],
-            duration=round(1000 / fps),
-            loop=0,
-        )
+    write_gif(path, frames, round(1000 / fps))
 
 
 def _side_by_side(*images: np.ndarray, scale: int = GIF_SCALE) -> np.ndarray:

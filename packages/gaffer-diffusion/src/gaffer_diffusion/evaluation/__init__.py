@@ -15,8 +15,9 @@ Datasets converted from the authors' released validation layout (`gaffer-data co
 camera-frame LDR/HDR maps (`envmap_ldr/`, `envmap_hdr/`), used as they are (no env map, no `compat`).
 
 Images are scored the way the authors score them: full frame, object composited on a white background,
-prediction quantised to 8 bits. Renders at another resolution than the model's are resized (PIL bicubic)
-before use, for input and target alike.
+prediction quantised to 8 bits. Renders at another resolution than the model's are resized before use,
+for input and target alike, by the reader training uses (`gaffer_diffusion.images.load_rgba_on_white`:
+bilinear, antialiased).
 
 gaffer-data is imported lazily, only here: `pip install "gaffer-diffusion[eval]"`.
 """

@@ -1,18 +1,19 @@
-"""Reading the pairs' images as they are scored: on white, optionally cropped, at the model's size;
-the 8-bit quantisation of predictions."""
+"""Reading the pairs' images as they are scored: on white, optionally cropped, at the model's size
+(`gaffer_diffusion.images`, the same reader as training); masks; `quantize_8bit` is re-exported."""
 
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.errors import DatasetError
 from gaffer_diffusion.evaluation.records import EvalPair
-from gaffer_diffusion.preprocess import crop_square, load_rgba_on_white, object_square, read_alpha
+from gaffer_diffusion.images import crop_square, load_rgba_on_white, read_alpha
+from gaffer_diffusion.images import quantize_8bit as quantize_8bit  # its home before
+from gaffer_diffusion.preprocess import object_square
 
 
 def read_rgba_on_white(
@@ -59,15 +60,3 @@ def read_mask(path: Path, size: int, box: tuple[int, int, int] | None = None) ->
 def _to_chw(arrs: list[np.ndarray]) -> Tensor:
     t = torch.from_numpy(np.stack(arrs))
     return t.permute(0, 3, 1, 2).contiguous() if t.ndim == 4 else t[:, None].contiguous()
-
-
-def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
-    """Round to the 8-bit grid, as writing and re-reading a PNG would (the authors score PNGs).
-
-    Example:
-        >>> import torch
-        >>> x = quantize_8bit(torch.full((1, 3, 1, 1), 0.301))
-        >>> round(float(x[0, 0, 0, 0]) * 255, 3)
-        77.0
-    """
-    return (images.clamp(0.0, 1.0) * 255.0).round() / 255.0

@@ -6,8 +6,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
-from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import RelightingConditions
@@ -15,7 +13,6 @@ from gaffer_diffusion.errors import DatasetError
 from gaffer_diffusion.evaluation.images import (
     _to_chw,
     pair_crop_box,
-    quantize_8bit,
     read_mask,
     read_rgba_on_white,
 )
@@ -26,6 +23,7 @@ from gaffer_diffusion.evaluation.records import (
     EvalPair,
     EvaluationConfig,
 )
+from gaffer_diffusion.images import quantize_8bit, to_uint8, write_png
 from gaffer_diffusion.metrics import (
     MetricsReport,
     PerceptualMetric,
@@ -189,5 +187,4 @@ def _save_predictions(folder: Path, batch: Sequence[EvalPair], pred: Tensor) -> 
     for p, img in zip(batch, pred, strict=True):
         path = Path(folder) / f"{p.name}.png"
         path.parent.mkdir(parents=True, exist_ok=True)
-        arr = (img.permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
-        Image.fromarray(arr).save(path)
+        write_png(path, to_uint8(img))

@@ -13,10 +13,10 @@ import numpy as np
 import torch
 from diffusers.models.unets.unet_2d_condition import UNet2DConditionModel
 from jaxtyping import Float
-from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import LightingMaps
+from gaffer_diffusion.images import quantize_8bit, to_uint8, write_png
 from gaffer_diffusion.metrics import psnr
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import (
@@ -176,8 +176,8 @@ def validate(
         device=device,
     )
     pred = torch.cat([b.output.images.float().cpu() for b in batches])
-    # 8-bit like saved predictions (the authors score PNGs)
-    pred = torch.round(pred * 255.0) / 255.0
+    # 8-bit like saved predictions (the authors score PNGs); the pipeline's images are in [0, 1]
+    pred = quantize_8bit(pred)
     p = psnr(pred, valset.target_images)
     p_id = psnr(valset.input_images, valset.target_images)
     sheet = None
@@ -200,11 +200,9 @@ def sheet_array(valset: ValidationSet, pred: Tensor, max_rows: int = 8) -> np.nd
         torch.cat([valset.input_images[i], pred[i], valset.target_images[i]], dim=2)
         for i in range(n)
     ]
-    grid = torch.cat(rows, dim=1).permute(1, 2, 0).clamp(0, 1)
-    return (grid.numpy() * 255.0).round().astype(np.uint8)
+    return to_uint8(torch.cat(rows, dim=1))
 
 
 def _write_sheet(path: Path, valset: ValidationSet, pred: Tensor) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(sheet_array(valset, pred)).save(path)
-    return path
+    return write_png(path, sheet_array(valset, pred))

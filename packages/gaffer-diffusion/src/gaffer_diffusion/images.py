@@ -1,0 +1,158 @@
+"""The one image module: renders read on white, the 8-bit grid, and PNG/GIF files written atomically.
+
+- Reading: `load_rgba_on_white` is the one reader of rendered views for training, evaluation and the
+  demo (one resize: bilinear, antialiased, colour and alpha together), with `crop_square` and
+  `read_alpha` for the object-centred framing. `gaffer_diffusion.preprocess` re-exports all three.
+- Quantising: `quantize_8bit` rounds float images to the 8-bit grid (as a PNG round trip would);
+  `to_uint8` is the same rounding as a `[H, W, C]` uint8 array, ready to write.
+- Writing: `write_png` and `write_gif` write to a temporary sibling and rename it into place
+  (`gaffer_envmap.atomic.atomic_path`), so a failure mid-write leaves nothing under the final name
+  and an earlier file there untouched; the error is an `EnvmapWriteError` (an `OSError`).
+"""
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from PIL import Image
+from torch import Tensor
+
+from gaffer_envmap.atomic import atomic_path
+
+
+def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
+    """Round to the 8-bit grid, as writing and re-reading a PNG would (the authors score PNGs).
+
+    Example:
+        >>> import torch
+        >>> x = quantize_8bit(torch.full((1, 3, 1, 1), 0.301))
+        >>> round(float(x[0, 0, 0, 0]) * 255, 3)
+        77.0
+    """
+    return (images.clamp(0.0, 1.0) * 255.0).round() / 255.0
+
+
+def to_uint8(image: Float[Tensor, "C H W"]) -> np.ndarray:
+    """`[C, H, W]` float in [0, 1] -> `[H, W, C]` uint8 on the grid of `quantize_8bit`.
+
+    Example:
+        >>> import torch
+        >>> to_uint8(torch.tensor([[[0.301, 1.5]]])).tolist()
+        [[[77], [255]]]
+    """
+    arr = (image.detach().clamp(0.0, 1.0) * 255.0).round().permute(1, 2, 0).cpu().numpy()
+    return arr.astype(np.uint8)
+
+
+def write_png(path: Path, image: np.ndarray) -> Path:
+    """Write a `[H, W]` or `[H, W, 1|2|3|4]` uint8 array as a PNG, atomically; returns `path`.
+
+    Raises:
+        EnvmapWriteError: the write failed (an `OSError`); nothing new is left under `path`.
+    """
+    arr = np.asarray(image)
+    if arr.dtype != np.uint8:
+        raise TypeError(f"`image` has dtype {arr.dtype}; expected uint8 (see `to_uint8`).")
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[..., 0]
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.ascontiguousarray(arr)).save(tmp, format="PNG")
+    return Path(path)
+
+
+def write_gif(path: Path, frames: Sequence[np.ndarray], duration_ms: int) -> Path:
+    """An endlessly looping GIF of `[H, W, 3]` uint8 frames, `duration_ms` each, written atomically.
+
+    Raises:
+        ValueError: on no frames.
+        EnvmapWriteError: the write failed (an `OSError`); nothing new is left under `path`.
+    """
+    if not frames:
+        raise ValueError("`frames` is empty; nothing to write.")
+    images = [Image.fromarray(np.asarray(f, np.uint8)) for f in frames]
+    with atomic_path(path) as tmp:
+        images[0].save(
+            tmp,
+            format="GIF",
+            save_all=True,
+            append_images=images[1:],
+            duration=duration_ms,
+            loop=0,
+        )
+    return Path(path)
+
+
+def crop_square(arr: np.ndarray, box: tuple[int, int, int], fill: float) -> np.ndarray:
+    """`arr[top:top+side, left:left+side]` of an `[H, W, C]` array, padded with `fill` outside it."""
+    top, left, side = box
+    out = np.full((side, side, arr.shape[2]), fill, dtype=arr.dtype)
+    y0, x0 = max(top, 0), max(left, 0)
+    y1, x1 = min(top + side, arr.shape[0]), min(left + side, arr.shape[1])
+    if y1 > y0 and x1 > x0:
+        out[y0 - top : y1 - top, x0 - left : x1 - left] = arr[y0:y1, x0:x1]
+    return out
+
+
+def load_rgba_on_white(
+    path: Path,
+    size: int,
+    alpha_path: Path | None = None,
+    box: tuple[int, int, int] | None = None,
+) -> tuple[Float[Tensor, "3 S S"], Float[Tensor, "1 S S"]]:
+    """An sRGB PNG (straight alpha) composited on white and its alpha, cropped and resized to `size`.
+
+    The one reader of rendered views for training, evaluation and the demo, so all of them see the
+    same pixels: optional square crop `box` (`object_square`; transparent outside the image), straight
+    alpha over white in sRGB (as the authors do), then bilinear antialiased resizing of colour and
+    alpha together.
+
+    Args:
+        path: RGBA (or RGB) 8-bit image.
+        size: output side length.
+        alpha_path: a separate 8-bit mask used when the image has no alpha channel.
+        box: `(top, left, side)` crop in the image's pixels, or None for the whole image.
+
+    Returns:
+        `[3, size, size]` colour and `[1, size, size]` alpha, float32 in [0, 1].
+
+    Raises:
+        OSError: unreadable or truncated file (PIL's errors).
+        ValueError: unusable image data.
+    """
+
+    with Image.open(path) as im:
+        im.load()
+        rgba = np.asarray(im.convert("RGBA"), dtype=np.float32) / 255.0
+        has_alpha = im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info
+    rgb, alpha = rgba[..., :3], rgba[..., 3:4]
+    if not has_alpha and alpha_path is not None:
+        with Image.open(alpha_path) as m:
+            m.load()
+            alpha = np.asarray(m.convert("L"), dtype=np.float32)[..., None] / 255.0
+        if alpha.shape[:2] != rgb.shape[:2]:
+            raise ValueError(f"mask {alpha_path} has size {alpha.shape[:2]}, image {rgb.shape[:2]}")
+    # straight alpha over white: c = a * rgb + (1 - a) * 1   (in sRGB, as the authors do)
+    arr = np.concatenate([rgb * alpha + (1.0 - alpha), alpha], axis=-1)
+    if box is not None:
+        arr = np.concatenate(
+            [crop_square(arr[..., :3], box, 1.0), crop_square(arr[..., 3:], box, 0.0)], -1
+        )
+    out = torch.from_numpy(np.ascontiguousarray(arr)).permute(2, 0, 1)  # [4, h, w]
+    if tuple(out.shape[1:]) != (size, size):
+        out = F.interpolate(
+            out[None], size=(size, size), mode="bilinear", align_corners=False, antialias=True
+        )[0]
+    out = out.clamp(0.0, 1.0)
+    return out[:3].contiguous(), out[3:].contiguous()
+
+
+def read_alpha(path: Path) -> np.ndarray:
+    """`[H, W]` float32 alpha in [0, 1] of an RGBA image, or the grey values of a mask file."""
+    with Image.open(path) as im:
+        im.load()
+        if im.mode in ("RGBA", "LA", "PA") or "transparency" in im.info:
+            return np.asarray(im.convert("RGBA"), np.float32)[..., 3] / 255.0
+        return np.asarray(im.convert("L"), np.float32) / 255.0
