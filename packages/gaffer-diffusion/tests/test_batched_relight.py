@@ -4,7 +4,12 @@ import torch
 
 from gaffer_diffusion import build_model, get_preset
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
-from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig, relight_in_batches
+from gaffer_diffusion.pipelines import (
+    RelightPipeline,
+    SamplingConfig,
+    relight_built_batches,
+    relight_in_batches,
+)
 
 
 def test_chunks_equal_one_call_with_shared_and_per_item_inputs() -> None:
@@ -42,3 +47,38 @@ def test_chunks_equal_one_call_with_shared_and_per_item_inputs() -> None:
     )
     torch.testing.assert_close(got, ref)
     assert not torch.allclose(got[3], whole[3])  # per-item inputs and seeds were used
+
+
+def test_a_per_batch_builder_is_called_per_call_and_equals_one_call() -> None:
+    pipe = RelightPipeline(build_model(get_preset("tiny"), seed=0))
+    g = torch.Generator().manual_seed(1)
+    n = 5
+    images = torch.rand(n, 3, 64, 64, generator=g)
+    maps = LightingMaps(
+        ldr=torch.rand(n, 3, 64, 64, generator=g), hdr=torch.rand(n, 3, 64, 64, generator=g)
+    )
+    sampling = SamplingConfig(num_inference_steps=2)
+    whole = pipe(RelightingConditions(image=images, lighting=maps), sampling, seeds=[3] * n).images
+    events: list[tuple[str, int, int]] = []
+
+    def build(lo: int, hi: int) -> RelightingConditions:
+        events.append(("build", lo, hi))
+        part = LightingMaps(ldr=maps.ldr[lo:hi], hdr=maps.hdr[lo:hi])
+        return RelightingConditions(image=images[lo:hi], lighting=part)
+
+    got = []
+    for b in relight_built_batches(pipe, n, build, sampling, seeds=3, batch_size=2):
+        events.append(("relit", b.start, b.stop))
+        got.append(b.output.images)
+    # each batch's conditions are built just before its call (lazily), in order
+    assert events == [
+        ("build", 0, 2),
+        ("relit", 0, 2),
+        ("build", 2, 4),
+        ("relit", 2, 4),
+        ("build", 4, 5),
+        ("relit", 4, 5),
+    ]
+    torch.testing.assert_close(torch.cat(got), whole)
+    tensors = relight_in_batches(pipe, images, maps, sampling, seeds=3, batch_size=2)
+    torch.testing.assert_close(torch.cat([b.output.images for b in tensors]), whole)

@@ -208,7 +208,7 @@ def _relight_grid(args: argparse.Namespace) -> int:
 
     from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions
     from gaffer_diffusion.photo import prepare_photo
-    from gaffer_diffusion.pipelines import RelightPipeline
+    from gaffer_diffusion.pipelines import RelightPipeline, relight_built_batches
 
     _device(args)  # a CUDA device torch cannot use is refused before the weights load
     model = _load_model(args.checkpoint, args.base_model)
@@ -225,22 +225,27 @@ def _relight_grid(args: argparse.Namespace) -> int:
     sampling = _sampling(args)
     args.out.mkdir(parents=True, exist_ok=True)
     written = 0
+
+    def build(lo: int, hi: int) -> RelightingConditions:
+        chunk = jobs[lo:hi]
+        return RelightingConditions(
+            image=torch.cat([prepared[i].model_input.image for i, _ in chunk]),
+            mask=None
+            if args.full_frame
+            else torch.cat([prepared[i].model_input.mask for i, _ in chunk]),
+            lighting=LightingMaps(
+                ldr=torch.cat([lights[e][2].ldr for _, e in chunk]),
+                hdr=torch.cat([lights[e][2].hdr for _, e in chunk]),
+            ),
+        )
+
     with _progress(len(jobs), "relight") as bar:
-        for lo in range(0, len(jobs), args.batch_size):
-            chunk = jobs[lo : lo + args.batch_size]
-            cond = RelightingConditions(
-                image=torch.cat([prepared[i].model_input.image for i, _ in chunk]),
-                mask=None
-                if args.full_frame
-                else torch.cat([prepared[i].model_input.mask for i, _ in chunk]),
-                lighting=LightingMaps(
-                    ldr=torch.cat([lights[e][2].ldr for _, e in chunk]),
-                    hdr=torch.cat([lights[e][2].hdr for _, e in chunk]),
-                ),
-            )
-            # one seed for every item: a result does not depend on the batch it landed in
-            out = pipe(cond, sampling, seeds=[args.seed] * len(chunk))
-            for (i, e), image in zip(chunk, out.images.cpu(), strict=True):
+        # one seed for every item: a result does not depend on the batch it landed in
+        for batch in relight_built_batches(
+            pipe, len(jobs), build, sampling, seeds=args.seed, batch_size=args.batch_size
+        ):
+            chunk = jobs[batch.start : batch.stop]
+            for (i, e), image in zip(chunk, batch.output.images.cpu(), strict=True):
                 dest = args.out / loaded[i][0].stem / f"{lights[e][0]}.png"
                 try:
                     _save_png(dest, _finish(args, prepared[i], image, lights[e][1]))

@@ -1,11 +1,12 @@
 """`evaluate_dataset`: relight every pair in batches and score it against its ground truth."""
 
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
+import numpy as np
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import RelightingConditions
@@ -31,12 +32,16 @@ from gaffer_diffusion.metrics import (
     evaluate_images,
     load_perceptual,
 )
-from gaffer_diffusion.pipelines import RelightPipeline
+from gaffer_diffusion.pipelines import RelightPipeline, relight_built_batches
 
 
-def _batches(pairs: Sequence[EvalPair], size: int) -> Iterator[Sequence[EvalPair]]:
-    for lo in range(0, len(pairs), size):
-        yield pairs[lo : lo + size]
+class _BatchImages(NamedTuple):
+    """What `evaluate_dataset` read for one batch besides its conditions: `[S, S, 3]` inputs and
+    targets, `[S, S]` masks (float32 in [0, 1])."""
+
+    inputs: list[np.ndarray]
+    targets: list[np.ndarray]
+    masks: list[np.ndarray]
 
 
 def evaluate_dataset(
@@ -88,7 +93,10 @@ def evaluate_dataset(
     baselines: list[MetricsReport] = []
     done = 0
     try:
-        for batch in _batches(pairs, config.batch_size):
+        read: dict[int, _BatchImages] = {}  # filled by `build`, taken once its batch is relit
+
+        def build(lo: int, hi: int) -> RelightingConditions:
+            batch = pairs[lo:hi]
             boxes = [pair_crop_box(p, config.object_fraction) for p in batch]
             inputs, input_alphas = zip(
                 *(read_rgba_on_white(p.input_image, size, bx) for p, bx in zip(batch, boxes)),
@@ -102,18 +110,29 @@ def evaluate_dataset(
                 a if p.mask is None else read_mask(p.mask, size, bx)
                 for p, a, bx in zip(batch, alphas, boxes, strict=True)
             ]
-            cond = RelightingConditions(
+            read[lo] = _BatchImages(list(inputs), list(targets), masks)
+            return RelightingConditions(
                 image=_to_chw(list(inputs)),
                 lighting=pair_lighting(batch, size, config.compat),
                 mask=_to_chw(list(input_alphas)) if config.keep_background else None,
             )
-            out = pipe(cond, config.sampling, seeds=[config.seed] * len(batch))
-            pred = quantize_8bit(out.images.float().cpu())
+
+        for relit in relight_built_batches(
+            pipe,
+            len(pairs),
+            build,
+            config.sampling,
+            seeds=config.seed,
+            batch_size=config.batch_size,
+        ):
+            batch = pairs[relit.start : relit.stop]
+            inputs, targets, masks = read.pop(relit.start)
+            pred = quantize_8bit(relit.output.images.float().cpu())
             if config.predictions_dir is not None:
                 _save_predictions(config.predictions_dir, batch, pred)
             report = evaluate_images(
                 pred,
-                _to_chw(list(targets)),
+                _to_chw(targets),
                 mask=_to_chw(masks),
                 names=[p.name for p in batch],
                 perceptual=perceptual,
@@ -121,8 +140,8 @@ def evaluate_dataset(
             if config.baselines:
                 baselines.append(
                     evaluate_images(
-                        _to_chw(list(inputs)),
-                        _to_chw(list(targets)),
+                        _to_chw(inputs),
+                        _to_chw(targets),
                         mask=_to_chw(masks),
                         names=[p.name for p in batch],
                         perceptual=perceptual,

@@ -1,6 +1,11 @@
 """Inference pipelines: `RelightPipeline` (single-image relighting, paper §3.2)."""
 
-from gaffer_diffusion.pipelines.batched import RelightBatch, relight_in_batches
+from gaffer_diffusion.pipelines.batched import (
+    ConditionsBuilder,
+    RelightBatch,
+    relight_built_batches,
+    relight_in_batches,
+)
 from gaffer_diffusion.pipelines.config import (
     AttentionBackend,
     DtypeName,
@@ -12,6 +17,7 @@ from gaffer_diffusion.pipelines.relight import RelightOutput, RelightPipeline
 
 __all__ = [
     "AttentionBackend",
+    "ConditionsBuilder",
     "DtypeName",
     "NonFinitePolicy",
     "RelightBatch",
@@ -19,5 +25,6 @@ __all__ = [
     "RelightPipeline",
     "RuntimeConfig",
     "SamplingConfig",
+    "relight_built_batches",
     "relight_in_batches",
 ]
