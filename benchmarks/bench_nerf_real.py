@@ -28,7 +28,9 @@ encoding) under
   a perfect 2D relighting at this field and budget.
 
 Stage 1 `STAGE1_ITERATIONS` x 1024 rays, Stage 2 `STAGE2_ITERATIONS` full views (both from
-`relight_preset("tiny")`, counts raised). The relit training views (Stage 1's targets) are computed
+`relight_preset("tiny")`, counts raised). Stage 2's other settings (t* range, learning rates, loss
+weights) are `relight_preset("tiny")`'s, chosen on a VALIDATION split disjoint from this one in
+objects and target lightings (`bench_nerf_stage2_val.py`); this test split is scored once with them. The relit training views (Stage 1's targets) are computed
 once per pair and reused by `full` and `sds-stage2` (they are deterministic: shared noise); their
 seconds are counted in every variant that uses them.
 
@@ -76,6 +78,8 @@ TARGET_HDRIS = ("courtyard", "sunset")
 FIT_ITERATIONS = 600
 STAGE1_ITERATIONS = 300
 STAGE2_ITERATIONS = 20
+SDS_LR = {"lr_grid": 0.02, "lr_network": 1e-3}
+"""Stage 2's learning rates for the SDS variants: the paper's (`Stage2Config` defaults)."""
 QUICK = {"objects": 1, "targets": 1, "fit": 300, "stage1": 100, "stage2": 6}
 
 VARIANTS = ("unrelit", "stage1", "full", "sds-only", "sds-stage2", "full-whole", "stage1-oracle")
@@ -110,16 +114,56 @@ COLOURS = {
 # ---------------------------------------------------------------------------------------- data
 
 
+@dataclasses.dataclass(frozen=True)
+class Split:
+    """Which objects and target lightings a run uses: the test split (this benchmark) or the
+    validation split Stage 2's settings are chosen on (`bench_nerf_stage2_val.py`).
+
+    Objects and target HDRIs are disjoint between the two; the input lighting is the same.
+    """
+
+    name: str
+    object_seed: int
+    render_seed: int
+    targets: tuple[str, ...]
+    targets_are: str
+    env_var: str
+    folder: str
+
+    def data_root(self) -> Path:
+        return Path(os.environ.get(self.env_var) or common.RUNS / self.folder)
+
+
+TEST = Split(
+    "test",
+    OBJECT_SEED,
+    RENDER_SEED,
+    TARGET_HDRIS,
+    "gaffer-tiny's test-split HDRIs (model card)",
+    "GAFFER_BENCH_NERF_REAL_DATA",
+    "nerf_real_data",
+)
+VALIDATION = Split(
+    "validation",
+    42,
+    42,
+    ("forest", "studio"),
+    "gaffer-tiny's validation-split HDRIs (model card)",
+    "GAFFER_BENCH_NERF_VAL_DATA",
+    "nerf_real_val_data",
+)
+
+
 def data_root() -> Path:
-    return Path(os.environ.get("GAFFER_BENCH_NERF_REAL_DATA") or common.RUNS / "nerf_real_data")
+    return TEST.data_root()
 
 
-def renders(need: int = NUM_OBJECTS) -> Path:
+def renders(need: int = NUM_OBJECTS, split: Split = TEST) -> Path:
     """The gaffer-data multi-view render of the held-out objects (made once, then reused).
 
     Reused as soon as `need` objects are complete (their `transforms_test.json` is written last).
     """
-    root = data_root()
+    root = split.data_root()
     out = root / "renders"
     objects = sorted(
         p for p in (out / "objects").glob("*") if (p / "transforms_test.json").is_file()
@@ -136,7 +180,7 @@ def renders(need: int = NUM_OBJECTS) -> Path:
                 "--procedural",
                 str(NUM_OBJECTS),
                 "--seed",
-                str(OBJECT_SEED),
+                str(split.object_seed),
                 str(root / "recipe"),
             ],
             check=True,
@@ -146,7 +190,7 @@ def renders(need: int = NUM_OBJECTS) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
     for mesh in sorted((root / "recipe" / "objects" / "procedural").iterdir()):
         shutil.copy2(mesh, held["objects"] / mesh.name)
-    for name in (INPUT_HDRI, *TARGET_HDRIS):
+    for name in (INPUT_HDRI, *split.targets):
         shutil.copy2(root / "recipe" / "envmaps" / f"{name}.exr", held["envmaps"] / f"{name}.exr")
     common.log(f"  rendering {NUM_OBJECTS} objects at {RESOLUTION} px into {out} (once; resumable)")
     subprocess.run(
@@ -160,13 +204,13 @@ def renders(need: int = NUM_OBJECTS) -> Path:
             "--out",
             str(out),
             "--lightings",
-            str(1 + len(TARGET_HDRIS)),
+            str(1 + len(split.targets)),
             "--resolution",
             str(RESOLUTION),
             "--samples",
             str(SAMPLES),
             "--seed",
-            str(RENDER_SEED),
+            str(split.render_seed),
             "--workers",
             "1",
             "--train-views",
@@ -322,6 +366,11 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             relit_s = 0.0
             for variant in VARIANTS[1:]:
                 cfg = rcfg.with_ablation(ABLATION_OF[variant])  # type: ignore[arg-type]
+                if cfg.stage2 is not None and cfg.stage2.loss == "sds":
+                    # the SDS baselines keep the learning rates they were measured with before
+                    # (the paper's; also the validation sweep's SDS row): the quarter rates were
+                    # chosen for the guidance loss only
+                    cfg = dataclasses.replace(cfg, stage2=dataclasses.replace(cfg.stage2, **SDS_LR))
                 views, oracle, g = relit_views, None, guide
                 if variant == "full-whole":  # its own relit views, from whole frames
                     views, g = None, guide_whole
@@ -425,6 +474,22 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             "stage2_iterations": s2_iters,
             "stage2_lr_gamma": round(rcfg.stage2.lr_gamma, 5),
             "stage2_t_schedule": rcfg.stage2.t_schedule,
+            "stage2_settings": {
+                k: getattr(rcfg.stage2, k)
+                for k in (
+                    "t_start",
+                    "t_end",
+                    "l1_weight",
+                    "perceptual_weight",
+                    "lr_grid",
+                    "lr_network",
+                )
+            },
+            "sds_variants_learning_rates": SDS_LR,
+            "stage2_settings_from": (
+                "relight_preset('tiny'), chosen on the validation split "
+                "(bench_nerf_stage2_val.py, results/nerf_stage2_val.json)"
+            ),
             "sds_guidance_scale": guide.sds_guidance(rcfg.stage2),
             "perceptual_metric": None if metric is None else metric.name,
             "stage2_perceptual_loss": perceptual_loss.name,
