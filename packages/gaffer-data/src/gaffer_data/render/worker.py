@@ -95,12 +95,15 @@ def sanitize_envmap_pixels(pixels: np.ndarray, policy: str, source: str) -> np.n
     Raises:
         InputError: the policy refuses the map (it changed since the parent's check).
     """
+    from typing import cast
+
     from gaffer_envmap.errors import NonFiniteError
-    from gaffer_envmap.sanitize import sanitize
+    from gaffer_envmap.sanitize import SanitizePolicy, sanitize
 
     pixels = np.asarray(pixels)
     try:
-        rgb, _ = sanitize(pixels[..., :3], policy, name=source)
+        # the render config holds the policy as a str, checked against SANITIZE_POLICIES when made
+        rgb, _ = sanitize(pixels[..., :3], cast(SanitizePolicy, policy), name=source)
     except NonFiniteError as exc:
         raise InputError(f"environment map {exc}") from exc
     if np.may_share_memory(rgb, pixels):  # clean: `sanitize` returned the pixels themselves
