@@ -19,8 +19,9 @@ from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.training.batch import TrainBatch
 from gaffer_diffusion.training.config import TrainConfig
-from gaffer_diffusion.training.dataset import TrainBatch, batch_lighting_of
+from gaffer_diffusion.training.lighting import batch_lighting_of
 
 
 def step_generator(seed: int, step: int, rank: int, micro: int) -> torch.Generator:

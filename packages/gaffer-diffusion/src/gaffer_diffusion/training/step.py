@@ -13,8 +13,8 @@ import numpy as np
 import torch
 
 from gaffer_diffusion.training import checkpoint as ckpt
+from gaffer_diffusion.training.batch import TrainBatch
 from gaffer_diffusion.training.config import TrainConfig
-from gaffer_diffusion.training.dataset import TrainBatch
 from gaffer_diffusion.training.ema import EMAModel
 from gaffer_diffusion.training.objective import TrainingObjective, step_generator
 

@@ -26,8 +26,9 @@ from gaffer_diffusion.pipelines import (
     relight_in_batches,
 )
 from gaffer_diffusion.training.config import LightingCompat, ValidationConfig
-from gaffer_diffusion.training.dataset import RelightTrainDataset, batch_lighting
+from gaffer_diffusion.training.dataset import RelightTrainDataset
 from gaffer_diffusion.training.ema import EMAModel
+from gaffer_diffusion.training.lighting import batch_lighting
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -36,7 +37,7 @@ class ValidationSet:
 
     Pairs of a render carry an environment map, pairs of a converted authors' split their pre-encoded
     maps (`lighting_encoded` True); `envmaps` and `encoded_*` hold only the rows of their kind, in order
-    (see `gaffer_diffusion.training.dataset.batch_lighting`).
+    (see `gaffer_diffusion.training.lighting.batch_lighting`).
 
     Attributes:
         input_images: `[N, 3, H, W]` inputs in [0, 1].
