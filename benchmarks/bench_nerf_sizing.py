@@ -17,6 +17,15 @@ fixed-grid PSNR-vs-seconds curve.
 
 Run: `python benchmarks/bench_nerf_sizing.py [--quick] [--update-baseline] [--threads N] [--seed S]`
 (default 1 thread; about 3 minutes on one free core, `--quick` fewer fixed sides).
+
+`--real test|validation`: the same comparison on the gaffer-data Cycles renders of
+`bench_nerf_real.py` (3 unseen procedural objects per split, 64 px, input lighting city; rendered
+once by that benchmark or `bench_nerf_stage2_val.py` and reused here). Per object, the 20 train views
+are split into 17 fitted views and 3 early-stopping views (train indices 3, 10, 17); fit quality is
+the object-mask PSNR on the object's 5 held-out test views under the input lighting. Same fixed sides,
+same 300-iteration budget and early stopping; the footprint-alone fit is skipped. Results go to
+`nerf_sizing_real` (test split) or `nerf_sizing_real_val` (validation split, where any change to the
+rule is chosen; the test split is run once after).
 """
 
 import dataclasses
@@ -28,6 +37,8 @@ from typing import Any
 import _common as common
 
 NAME = "nerf_sizing"
+REAL_NAMES = {"test": "nerf_sizing_real", "validation": "nerf_sizing_real_val"}
+EARLY_STOP_VIEWS = (3, 10, 17)
 SIDES = (8, 12, 16, 20, 24, 32, 48)
 SIDES_QUICK = (12, 16, 24)
 MAX_RESOLUTION = 96
@@ -84,6 +95,262 @@ def _fits(quick: bool, seed: int) -> list[dict[str, Any]]:
     return rows
 
 
+def _take(views: Any, idx: Sequence[int]) -> Any:
+    """The views `idx` of a ViewSet (cameras, images, alpha, names)."""
+    from gaffer_nerf.cameras import Cameras
+
+    i = torch_index(idx)
+    c = views.cameras
+    cams = Cameras(
+        c2w_opencv=c.c2w_opencv[i],
+        focal_px=c.focal_px[i],
+        principal_px=c.principal_px[i],
+        width=c.width,
+        height=c.height,
+    )
+    return dataclasses.replace(
+        views,
+        rgb_srgb=views.rgb_srgb[i],
+        alpha=None if views.alpha is None else views.alpha[i],
+        cameras=cams,
+        names=tuple(views.names[j] for j in idx),
+    )
+
+
+def torch_index(idx: Sequence[int]) -> Any:
+    import torch
+
+    return torch.tensor(list(idx), dtype=torch.long)
+
+
+def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
+    import bench_nerf_real as real
+
+    from gaffer_nerf import EarlyStoppingConfig, fit_preset, fit_tensorf, read_gaffer_data_object
+    from gaffer_nerf.evaluate import evaluate_field
+    from gaffer_nerf.sizing import budget_side
+
+    split = real.TEST if split_name == "test" else real.VALIDATION
+    root = real.renders(real.NUM_OBJECTS, split)
+    folders = sorted(
+        p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
+    )[: 1 if quick else real.NUM_OBJECTS]
+    stop = EarlyStoppingConfig(eval_every=50, patience=2, min_iterations=150)
+    base = dataclasses.replace(fit_preset("tiny"), seed=seed, early_stopping=stop)
+    variants: list[tuple[str, str, Any]] = []
+    for side in SIDES_QUICK if quick else SIDES:
+        cfg = dataclasses.replace(
+            base, final_voxels=side**3, initial_voxels=min(base.initial_voxels, side**3)
+        )
+        variants.append((f"fixed {side}^3", "fixed", cfg))
+    rule = dataclasses.replace(base.sizing, mode="footprint", max_resolution=MAX_RESOLUTION)
+    variants.append(("rule", "rule", dataclasses.replace(base, sizing=rule)))
+    rows = []
+    for folder in folders:
+        probe = read_gaffer_data_object(folder)
+        idx = real.lighting_indices(probe)
+        scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
+        assert scene.test is not None
+        n = scene.train.num_views
+        fitted = _take(scene.train, [i for i in range(n) if i not in EARLY_STOP_VIEWS])
+        heldout = _take(scene.train, EARLY_STOP_VIEWS)
+        for label, kind, cfg in variants:
+            t0 = time.perf_counter()
+            res = fit_tensorf(fitted, cfg, heldout=heldout)
+            wall = time.perf_counter() - t0
+            rep, _ = evaluate_field(res.field, scene.test, perceptual=None)
+            r = res.report
+            side = budget_side(cfg) if kind == "rule" else None
+            rows.append(
+                {
+                    "object": folder.name,
+                    "label": label,
+                    "kind": kind,
+                    "iterations_run": r.iterations_run,
+                    "seconds": round(r.seconds, 3),
+                    "wall_seconds": round(wall, 3),
+                    "final_grid": list(r.final_grid),
+                    "grid_mib": round(r.grid_bytes / 2**20, 4),
+                    "test_psnr_object_db": round(float(rep.mean_object_raw.psnr), 3),
+                    "test_psnr_db": round(float(rep.mean_raw.psnr), 3),
+                    "budget_side": None if side is None else round(side, 2),
+                }
+            )
+            common.log(
+                f"  {folder.name} {label:<10} {r.seconds:6.1f} s  {r.iterations_run:>3} it  grid "
+                f"{'x'.join(map(str, r.final_grid)):<9} object PSNR "
+                f"{rep.mean_object_raw.psnr:.2f} dB (full frame {rep.mean_raw.psnr:.2f})"
+            )
+    return rows
+
+
+def _real_means(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per label: mean object PSNR, mean seconds over the objects (and the rule's grids)."""
+    out = []
+    for label in dict.fromkeys(r["label"] for r in rows):
+        rs = [r for r in rows if r["label"] == label]
+        out.append(
+            {
+                "label": label,
+                "kind": rs[0]["kind"],
+                "objects": len(rs),
+                "test_psnr_object_db": round(
+                    sum(r["test_psnr_object_db"] for r in rs) / len(rs), 3
+                ),
+                "test_psnr_db": round(sum(r["test_psnr_db"] for r in rs) / len(rs), 3),
+                "seconds": round(sum(r["seconds"] for r in rs) / len(rs), 3),
+                "iterations_run": round(sum(r["iterations_run"] for r in rs) / len(rs), 1),
+                "final_grids": [r["final_grid"] for r in rs],
+            }
+        )
+    return out
+
+
+def _real_summary(rows: list[dict[str, Any]], means: list[dict[str, Any]]) -> dict[str, Any]:
+    key = "test_psnr_object_db"
+    fixed = [m for m in means if m["kind"] == "fixed"]
+    rule = next(m for m in means if m["kind"] == "rule")
+    best = max(fixed, key=lambda m: m[key])
+    in_time = [m for m in fixed if m["seconds"] <= rule["seconds"]]
+    best_in_time = max(in_time, key=lambda m: m[key]) if in_time else None
+    per_object = {}
+    for obj in dict.fromkeys(r["object"] for r in rows):
+        rs = [r for r in rows if r["object"] == obj]
+        ru = next(r for r in rs if r["kind"] == "rule")
+        bf = max((r for r in rs if r["kind"] == "fixed"), key=lambda r: r[key])
+        per_object[obj] = {
+            "rule_grid": ru["final_grid"],
+            "rule_psnr_object_db": ru[key],
+            "rule_seconds": ru["seconds"],
+            "best_fixed": bf["label"],
+            "best_fixed_psnr_object_db": bf[key],
+            "best_fixed_seconds": bf["seconds"],
+            "rule_minus_best_fixed_db": round(ru[key] - bf[key], 3),
+        }
+    return {
+        "metric": "object-mask PSNR on the test views, input lighting (mean over objects)",
+        "rule_psnr_object_db": rule[key],
+        "rule_seconds": rule["seconds"],
+        "rule_grids": rule["final_grids"],
+        "best_fixed": best["label"],
+        "best_fixed_psnr_object_db": best[key],
+        "best_fixed_seconds": best["seconds"],
+        "rule_minus_best_fixed_db": round(rule[key] - best[key], 3),
+        "best_fixed_within_rule_time": None if best_in_time is None else best_in_time["label"],
+        "rule_minus_best_fixed_within_rule_time_db": None
+        if best_in_time is None
+        else round(rule[key] - best_in_time[key], 3),
+        "per_object": per_object,
+    }
+
+
+def plot_real(payload: dict[str, Any]) -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    key = "test_psnr_object_db"
+    objects = list(dict.fromkeys(r["object"] for r in payload["fits"]))
+    panels = [("mean over objects", payload["means"])] + [
+        (o, [r for r in payload["fits"] if r["object"] == o]) for o in objects
+    ]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 4.2), squeeze=False)
+    for ax, (title, rs) in zip(axes[0], panels, strict=True):
+        fixed = sorted((r for r in rs if r["kind"] == "fixed"), key=lambda r: r["seconds"])
+        ax.plot(
+            [r["seconds"] for r in fixed],
+            [r[key] for r in fixed],
+            "o-",
+            color="tab:blue",
+            label="fixed grid (side^3)",
+        )
+        for r in fixed:
+            ax.annotate(
+                r["label"].replace("fixed ", ""),
+                (r["seconds"], r[key]),
+                textcoords="offset points",
+                xytext=(4, -11),
+                fontsize=8,
+            )
+        for r in (r for r in rs if r["kind"] == "rule"):
+            ax.plot(
+                r["seconds"],
+                r[key],
+                "*",
+                color="tab:red",
+                markersize=14,
+                label="rule: footprint + iteration budget",
+            )
+            grid = r.get("final_grid")
+            if grid is not None:
+                ax.annotate(
+                    "x".join(map(str, grid)),
+                    (r["seconds"], r[key]),
+                    textcoords="offset points",
+                    xytext=(8, 4),
+                    fontsize=8,
+                    color="tab:red",
+                )
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("fit seconds (300 it max, early stopping)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("test object PSNR (dB, input lighting)")
+    axes[0][0].legend(fontsize=8, loc="lower right")
+    fig.suptitle(
+        f"Grid sizing on gaffer-data renders ({payload['config']['split']} split), one run "
+        f"({common.short_device(payload['machine'])})",
+        fontsize=11,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def main_real(split: str, args: Any) -> int:
+    threads = common.set_threads(args.threads or 1)
+    meta = common.machine(threads)
+    import gaffer_nerf
+
+    meta["gaffer_nerf"] = gaffer_nerf.__version__
+    rows = _real_fits(args.quick, args.seed, split)
+    means = _real_means(rows)
+    name = REAL_NAMES[split] + ("-quick" if args.quick else "")
+    payload: dict[str, Any] = {
+        "name": name,
+        "machine": meta,
+        "config": {
+            "split": split,
+            "quick": args.quick,
+            "seed": args.seed,
+            "scene": "bench_nerf_real renders (gaffer-data Cycles, 64 px, input lighting city): "
+            f"17 fitted train views, early stopping on train views {list(EARLY_STOP_VIEWS)}, "
+            "scored on the 5 test views",
+            "fit_preset": "tiny (300 iterations of 1024 rays)",
+            "early_stopping": "eval_every 50, patience 2, min_iterations 150",
+            "footprint_max_resolution": MAX_RESOLUTION,
+        },
+        "fits": rows,
+        "means": means,
+    }
+    payload["summary"] = _real_summary(rows, means)
+    for path in common.write_results(name, payload, plot_real(payload), args.update_baseline):
+        common.log(f"wrote {path}")
+    for m in means:
+        print(
+            f"{m['label']:<10} object PSNR {m['test_psnr_object_db']:6.2f} dB  "
+            f"{m['seconds']:6.1f} s  grids {m['final_grids']}"
+        )
+    s = payload["summary"]
+    print(
+        f"rule: {s['rule_psnr_object_db']:.2f} dB in {s['rule_seconds']:.1f} s; best fixed "
+        f"{s['best_fixed']}: {s['best_fixed_psnr_object_db']:.2f} dB in "
+        f"{s['best_fixed_seconds']:.1f} s ({s['rule_minus_best_fixed_db']:+.2f} dB); best fixed "
+        f"within the rule's time: {s['best_fixed_within_rule_time']} "
+        f"({s['rule_minus_best_fixed_within_rule_time_db']})"
+    )
+    return 0
+
+
 def plot(payload: dict[str, Any]) -> Any:
     import matplotlib
 
@@ -131,7 +398,18 @@ def plot(payload: dict[str, Any]) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    split = None
+    if "--real" in argv:
+        i = argv.index("--real")
+        split = argv[i + 1] if i + 1 < len(argv) else ""
+        if split not in REAL_NAMES:
+            print("--real takes 'test' or 'validation'", file=sys.stderr)
+            return 2
+        del argv[i : i + 2]
     args = common.parse_args(__doc__.split("\n")[0], argv)
+    if split is not None:
+        return main_real(split, args)
     threads = common.set_threads(args.threads or 1)
     meta = common.machine(threads)
     import gaffer_nerf
