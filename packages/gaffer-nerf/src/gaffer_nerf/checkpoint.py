@@ -12,6 +12,7 @@ from typing import Any
 import torch
 from safetensors.torch import load_file, save_file
 
+from gaffer_envmap.schema_header import schema_header_problem
 from gaffer_nerf._version import __version__
 from gaffer_nerf.configs import SceneBoxConfig, TensoRFConfig
 from gaffer_nerf.errors import CheckpointError
@@ -48,8 +49,8 @@ def load_field(folder: str | Path, *, device: str | torch.device = "cpu") -> Ten
     """Load a field written by `save_field`.
 
     Raises:
-        CheckpointError: missing files, another class, an unknown major format version, or
-            tensors that do not match.
+        CheckpointError: missing files, another class, a `format_version` that is not
+            "MAJOR.MINOR" or of another MAJOR than `FORMAT_VERSION`'s, or tensors that do not match.
     """
     folder = Path(folder)
     cfg_path, w_path = folder / CONFIG_NAME, folder / WEIGHTS_NAME
@@ -59,12 +60,18 @@ def load_field(folder: str | Path, *, device: str | torch.device = "cpu") -> Ten
             "make one with `gaffer-nerf fit`."
         )
     meta = json.loads(cfg_path.read_text())
-    if meta.get("_class_name") != CLASS_NAME:
+    # the shared header check (gaffer_envmap.schema_header) on this file's own keys: `_class_name`
+    # plays `schema`, `format_version` `schema_version`; a newer MINOR is read
+    header = {
+        "schema": meta.get("_class_name"),
+        "schema_version": str(meta.get("format_version", "0")),
+    }
+    problem = schema_header_problem(header, schema=CLASS_NAME, version=FORMAT_VERSION)
+    if problem == "foreign_schema":
         raise CheckpointError(
             f"{cfg_path} holds `_class_name`={meta.get('_class_name')!r}, expected {CLASS_NAME!r}."
         )
-    major = str(meta.get("format_version", "0")).split(".")[0]
-    if major != FORMAT_VERSION.split(".")[0]:
+    if problem in ("malformed_version", "other_major"):
         raise CheckpointError(
             f"{cfg_path} has format version {meta.get('format_version')!r}; this gaffer-nerf reads "
             f"{FORMAT_VERSION.split('.')[0]}.x. Use the gaffer-nerf version that wrote it."
