@@ -45,7 +45,8 @@ though its maps were rendered as Blender loaded them, unsanitized).
 DATASET_SCHEMA = "gaffer.render_dataset"
 """Schema name of a dataset's top-level `dataset.json`."""
 DATASET_SCHEMA_VERSION = "1.2"
-"""1.2: `config.envmap_sanitize`, as in `OBJECT_SCHEMA_VERSION`."""
+"""MAJOR.MINOR version of `dataset.json`; version 1.2 added `config.envmap_sanitize`, as in
+`OBJECT_SCHEMA_VERSION`."""
 
 Split = Literal["train", "test"]
 """The split of a view in a multi-view set."""
