@@ -15,12 +15,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_data.errors import GafferDataError
-from gaffer_envmap.errors import (
-    GafferEnvmapError,
-    add_debug_argument,
-    cli_failure,
-    exit_codes_epilog,
-)
+from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
+from gaffer_envmap.errors import GafferEnvmapError
 from gaffer_envmap.sanitize import add_sanitize_argument
 
 if TYPE_CHECKING:

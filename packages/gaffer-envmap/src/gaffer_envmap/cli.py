@@ -17,14 +17,9 @@ import numpy as np
 
 from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
+from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
 from gaffer_envmap.compat_mode import COMPAT_MODES
-from gaffer_envmap.errors import (
-    GafferEnvmapError,
-    NonFiniteError,
-    add_debug_argument,
-    cli_failure,
-    exit_codes_epilog,
-)
+from gaffer_envmap.errors import GafferEnvmapError, NonFiniteError
 from gaffer_envmap.io import read_envmap, write_envmap, write_png
 from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 from gaffer_envmap.sanitize import add_sanitize_argument

@@ -38,8 +38,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
 from gaffer_envmap.compat_mode import COMPAT_MODES
-from gaffer_envmap.errors import add_debug_argument, cli_failure, exit_codes_epilog
 from gaffer_envmap.sanitize import add_sanitize_argument, sanitize_flag_refusal
 from gaffer_nerf import preflight
 from gaffer_nerf.configs import (

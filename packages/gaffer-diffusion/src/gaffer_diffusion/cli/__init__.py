@@ -55,7 +55,8 @@ from gaffer_diffusion.cli.evaluate import _evaluate
 from gaffer_diffusion.cli.parser import _parser
 from gaffer_diffusion.cli.relight import _relight
 from gaffer_diffusion.cli.train import _export, _init_random, _train
-from gaffer_envmap.errors import GafferError, cli_failure
+from gaffer_envmap.cli_support import cli_failure
+from gaffer_envmap.errors import GafferError
 
 __all__ = ["main"]
 

@@ -19,8 +19,8 @@ from gaffer_diffusion._choices import (
     PrepareCompat,
 )
 from gaffer_diffusion.app.config import add_app_arguments
+from gaffer_envmap.cli_support import add_debug_argument, exit_codes_epilog
 from gaffer_envmap.compat_mode import COMPAT_MODES
-from gaffer_envmap.errors import add_debug_argument, exit_codes_epilog
 from gaffer_envmap.sanitize import add_sanitize_argument
 
 _DESCRIPTION = "Command line: `gaffer-diffusion demo | relight | evaluate | init-random | train`."
