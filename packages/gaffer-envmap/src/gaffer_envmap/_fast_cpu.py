@@ -231,72 +231,6 @@ def _stage_uv(
 
 
 @no_type_check
-def _stage_taps(
-    uu: np.ndarray,
-    yy: np.ndarray,
-    cells: np.ndarray,
-    starts: np.ndarray,
-    i0: np.ndarray,
-    i1: np.ndarray,
-    i2: np.ndarray,
-    i3: np.ndarray,
-    w0: np.ndarray,
-    w1: np.ndarray,
-    w2: np.ndarray,
-    w3: np.ndarray,
-    w_s: np.ndarray,
-    cover: np.ndarray,
-) -> None:
-    """The four bilinear taps (flat cell, weight) of the sub-samples on the reduced grid (see
-    `conservative.cell_taps`): the row beyond a pole is the edge row turned by half. Floors are integer
-    truncations of values known to be > -1, and the column wrap is at most one period: no division.
-
-    The same loop scatters the taps' weights times the sample weights `w_s` into the coverage `cover`
-    (float64), C_g = sum_s w_s b(s, g), the adjoint of the lookup: the loop is scalar anyway (its
-    row-table lookups are gathers that LLVM will not vectorise on this CPU), and fusing saves a second
-    pass over the taps (measured 2.1 + 1.1 ms apart)."""
-    he = cells.shape[0]
-    for s in range(uu.shape[0]):
-        u = uu[s]
-        y = yy[s]  # >= -1/2
-        y0 = np.int32(y + _ONE) - np.int32(1)
-        fy = y - _f(y0)
-        r0 = max(y0, np.int32(0))  # y0 = -1: across the north pole
-        u0 = u + _HALF if y0 < 0 else u
-        n0 = cells[r0]
-        x = u0 * _f(n0) - _HALF
-        xi = np.int32(x + _ONE) - np.int32(1)
-        fx0 = x - _f(xi)
-        j0 = xi + n0 if xi < 0 else (xi - n0 if xi >= n0 else xi)
-        j1 = j0 + 1 if j0 + 1 < n0 else j0 + 1 - n0
-        r1 = min(y0 + np.int32(1), np.int32(he - 1))  # y0 + 1 = He: across the south pole
-        u1 = u + _HALF if y0 + 1 >= he else u
-        n1 = cells[r1]
-        x = u1 * _f(n1) - _HALF
-        xi = np.int32(x + _ONE) - np.int32(1)
-        fx1 = x - _f(xi)
-        k0 = xi + n1 if xi < 0 else (xi - n1 if xi >= n1 else xi)
-        k1 = k0 + 1 if k0 + 1 < n1 else k0 + 1 - n1
-        i0[s] = starts[r0] + j0
-        i1[s] = starts[r0] + j1
-        i2[s] = starts[r1] + k0
-        i3[s] = starts[r1] + k1
-        a0 = (_ONE - fy) * (_ONE - fx0)
-        a1 = (_ONE - fy) * fx0
-        a2 = fy * (_ONE - fx1)
-        a3 = fy * fx1
-        w0[s] = a0
-        w1[s] = a1
-        w2[s] = a2
-        w3[s] = a3
-        ws_ = np.float64(w_s[s])
-        cover[starts[r0] + j0] += ws_ * a0
-        cover[starts[r0] + j1] += ws_ * a1
-        cover[starts[r1] + k0] += ws_ * a2
-        cover[starts[r1] + k1] += ws_ * a3
-
-
-@no_type_check
 def _stage_taps_band(
     uu: np.ndarray,
     yy: np.ndarray,
@@ -314,7 +248,8 @@ def _stage_taps_band(
     w3: np.ndarray,
     slow: np.ndarray,
 ) -> None:
-    """`_stage_taps` for sub-samples whose two rows lie in the band [band_lo, band_hi) of whole rows
+    """The four bilinear taps (flat cell, weight) on the reduced grid (see `conservative.cell_taps`) of
+    sub-samples whose two rows lie in the band [band_lo, band_hi) of whole rows
     (no pole groups: `width` cells a row, row r starting at band_start + (r - band_lo) width), written
     without table lookups so that LLVM vectorises it (a gather of the row table keeps the loop scalar on
     this CPU). Every other sample (pole rows, pole crossings) is flagged in `slow` for the scalar
@@ -362,8 +297,10 @@ def _stage_fix_cover(
     w_s: np.ndarray,
     cover: np.ndarray,
 ) -> None:
-    """Taps of the flagged samples through the row table (`_stage_taps`' arithmetic), then every
-    sample's weights times w_s scattered into the coverage C_g (float64): the one scalar loop."""
+    """Taps of the flagged samples through the row table (pole rows have fewer, wider cells; the row
+    beyond a pole is the edge row turned by half; floors are truncations of values > -1 and the column
+    wrap is at most one period), then every sample's weights times w_s scattered into the coverage
+    C_g = sum_s w_s b(s, g) (float64), the adjoint of the lookup: the one scalar loop."""
     he = cells.shape[0]
     for s in range(uu.shape[0]):
         if slow[s]:
@@ -565,7 +502,6 @@ def _splat_lost(
 _jit = njit(fastmath=True, cache=True, nogil=True, error_model="numpy")
 _stage_cells = _jit(_stage_cells)
 _stage_uv = _jit(_stage_uv)
-_stage_taps = _jit(_stage_taps)
 _stage_taps_band = _jit(_stage_taps_band)
 _stage_fix_cover = _jit(_stage_fix_cover)
 _stage_gains = _jit(_stage_gains)
