@@ -23,6 +23,8 @@ encoding) under
 - `full-whole` (the framing ablation): `full` with the model shown whole views
   (`DiffusionSamplingConfig(object_fraction="whole")`) instead of the object-centred crops it was
   trained on (gaffer-tiny's own framing, 0.75, used by every other variant);
+- `full-shared` (the consistency ablation): `full` with every training view relit from the same
+  initial noise (`DiffusionSamplingConfig(shared_noise=True)`) instead of a noise per view;
 - `stage1-oracle` (reference, not a method): Stage 1 fitted to the Cycles renders of the TRAINING
   views under the target lighting instead of gaffer-tiny's relit views: what Stage 1 could reach with
   a perfect 2D relighting at this field and budget.
@@ -39,6 +41,12 @@ and SSIM over the object mask (alpha-weighted), shift-tolerant LPIPS (ST-LPIPS, 
 LPIPS) on the object's crop, the mask-aligned PSNR (per-channel scale fitted in the mask, as the
 paper's metrics), and full-frame PSNR; means over the test views, then over the (object, target)
 pairs. Seconds per phase: fit (per object), weight cache, encoding, relit views, Stage 1, Stage 2.
+
+Multi-view consistency (issue 20 item 3): every field is also rendered along a closed 16-frame orbit
+(one ring at 30 degrees elevation, a second gaffer-data render of the same objects under the same
+lighting draws, `orbit_renders`), and `gaffer_nerf.flicker.temporal_flicker` scores the sequence
+against the Cycles orbit under the target lighting: the mean frame-to-frame change the ground truth
+does not have (0 = none), and the ratio of frame-to-frame energies (relit / truth).
 
 The renders are made once and cached (needs gaffer-data[render], Blender's bpy) under
 `$GAFFER_BENCH_NERF_REAL_DATA` (default `results/runs/nerf_real_data/`, git-ignored).
@@ -82,13 +90,23 @@ SDS_LR = {"lr_grid": 0.02, "lr_network": 1e-3}
 """Stage 2's learning rates for the SDS variants: the paper's (`Stage2Config` defaults)."""
 QUICK = {"objects": 1, "targets": 1, "fit": 300, "stage1": 100, "stage2": 6}
 
-VARIANTS = ("unrelit", "stage1", "full", "sds-only", "sds-stage2", "full-whole", "stage1-oracle")
+VARIANTS = (
+    "unrelit",
+    "stage1",
+    "full",
+    "sds-only",
+    "sds-stage2",
+    "full-whole",
+    "full-shared",
+    "stage1-oracle",
+)
 ABLATION_OF = {
     "stage1": "no-stage2",
     "full": "full",
     "sds-only": "sds-only",
     "sds-stage2": "sds-stage2",
     "full-whole": "full",
+    "full-shared": "full",
     "stage1-oracle": "no-stage2",
 }
 LABELS = {
@@ -98,6 +116,7 @@ LABELS = {
     "sds-only": "SDS only",
     "sds-stage2": "Stage 1 + SDS",
     "full-whole": "full, whole views (no framing)",
+    "full-shared": "full, shared noise",
     "stage1-oracle": "Stage 1, oracle targets",
 }
 COLOURS = {
@@ -107,6 +126,7 @@ COLOURS = {
     "sds-only": "tab:orange",
     "sds-stage2": "tab:purple",
     "full-whole": "tab:brown",
+    "full-shared": "tab:pink",
     "stage1-oracle": "tab:green",
 }
 
@@ -224,6 +244,88 @@ def renders(need: int = NUM_OBJECTS, split: Split = TEST) -> Path:
     return out
 
 
+ORBIT_VIEWS = 16
+"""Frames of the closed test orbit the flicker metric runs along (issue 20 item 3)."""
+ORBIT_ELEVATION_DEG = 30.0
+
+
+def orbit_renders(split: Split = TEST) -> Path:
+    """A closed ring of `ORBIT_VIEWS` cameras around the same objects, under the same lightings.
+
+    A second `render-multiview` of the held-out objects with `--layout orbit` (all views in its
+    training split, in ring order) and the same seed, envmap pool and lighting count: gaffer-data
+    draws each object's lightings (map, flip, yaw) from (seed, object id) alone, so the orbit is lit
+    exactly as the sphere-layout views are (checked per object by `orbit_views`). Made once, reused.
+    """
+    renders(NUM_OBJECTS, split)  # the held-out objects and maps it copies
+    root = split.data_root()
+    out = root / "orbit"
+    objects = sorted(
+        p for p in (out / "objects").glob("*") if (p / "transforms_train.json").is_file()
+    )
+    if (out / "dataset.json").is_file() and len(objects) >= NUM_OBJECTS:
+        return out
+    held = root / "held"
+    common.log(
+        f"  rendering a {ORBIT_VIEWS}-frame orbit of {NUM_OBJECTS} objects into {out} (once)"
+    )
+    subprocess.run(
+        [
+            str(Path(sys.executable).parent / "gaffer-data"),
+            "render-multiview",
+            *("--objects", str(held / "objects"), "--envmaps", str(held / "envmaps")),
+            *("--out", str(out), "--lightings", str(1 + len(split.targets))),
+            *("--resolution", str(RESOLUTION), "--samples", str(SAMPLES)),
+            *("--seed", str(split.render_seed), "--workers", "1"),
+            *("--train-views", str(ORBIT_VIEWS), "--test-views", "0"),
+            *("--layout", "orbit", "--orbit-elevation", str(ORBIT_ELEVATION_DEG), "--no-progress"),
+        ],
+        check=True,
+    )
+    return out
+
+
+def orbit_views(orbit_folder: Path, scene: Any, lighting_index: int) -> Any:
+    """The orbit's frames under one lighting, in ring order (a `ViewSet`).
+
+    Raises:
+        RuntimeError: the orbit render's lighting draws differ from `scene`'s (a different pool,
+            seed or gaffer-data version), so its frames would not show the same lighting.
+    """
+    from gaffer_nerf import read_gaffer_data_object
+
+    probe = read_gaffer_data_object(orbit_folder)
+
+    def draws(s: Any) -> list[tuple[Any, ...]]:
+        return [(x.lighting_index, x.envmap, x.flip, x.yaw_step, x.num_steps) for x in s.lightings]
+
+    if draws(probe) != draws(scene):
+        raise RuntimeError(
+            f"{orbit_folder}: its lighting draws differ from the sphere-layout render's; delete "
+            f"{orbit_folder.parent.parent} and rerun to render it again"
+        )
+    views = read_gaffer_data_object(orbit_folder, lighting_index=lighting_index).train
+    centre = views.cameras.c2w_opencv[:, :3, 3]
+    order = torch.argsort(torch.atan2(centre[:, 1], centre[:, 0])).tolist()
+    from gaffer_nerf.cameras import Cameras
+
+    c = views.cameras
+    i = torch.tensor(order)
+    return dataclasses.replace(
+        views,
+        rgb_srgb=views.rgb_srgb[i],
+        alpha=None if views.alpha is None else views.alpha[i],
+        cameras=Cameras(
+            c2w_opencv=c.c2w_opencv[i],
+            focal_px=c.focal_px[i],
+            principal_px=c.principal_px[i],
+            width=c.width,
+            height=c.height,
+        ),
+        names=tuple(views.names[j] for j in order),
+    )
+
+
 def lighting_indices(scene: Any) -> dict[str, int]:
     """HDRI name -> the object's lighting index (gaffer-data draws the order per object)."""
     return {li.envmap: li.lighting_index for li in scene.lightings}
@@ -240,6 +342,21 @@ def scores(report: Any) -> dict[str, float | None]:
         "stlpips_crop": None if obj.perceptual is None else round(float(obj.perceptual), 4),
         "psnr_object_aligned_db": round(float(al.psnr), 3),
         "psnr_full_frame_db": round(float(report.mean_raw.psnr), 3),
+    }
+
+
+def orbit_flicker(field: Any, orbit: Any) -> dict[str, float]:
+    """The field rendered along the orbit, scored for flicker against the Cycles orbit."""
+    from gaffer_nerf.evaluate import render_views
+    from gaffer_nerf.flicker import temporal_flicker
+
+    with torch.no_grad():
+        seq = render_views(field, orbit.cameras)
+    gt = orbit.rgb_srgb.permute(0, 3, 1, 2).contiguous()
+    rep = temporal_flicker(seq, gt, orbit.alpha, closed=True)
+    return {
+        "orbit_flicker": round(rep.flicker, 5),
+        "orbit_energy_ratio": round(rep.energy_ratio, 3),
     }
 
 
@@ -276,6 +393,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     root = renders(n_objects)
+    orbit_root = orbit_renders()
     render_s = time.perf_counter() - t0
     folders = sorted(
         p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
@@ -320,6 +438,9 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
         dataclasses.replace(rcfg.diffusion, object_fraction="whole"),
         loaded.suggested,
     )
+    guide_shared = DiffusionGuide(
+        guide.pipeline, dataclasses.replace(rcfg.diffusion, shared_noise=True), loaded.suggested
+    )
 
     pairs: list[dict[str, Any]] = []
     fits: list[dict[str, Any]] = []
@@ -359,8 +480,14 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             env = load_lighting_envmap(scene.lighting(li), root.parent / "held" / "envmaps")
             row: dict[str, Any] = {"object": folder.name, "target": target, "variants": {}}
             renders_of: dict[str, torch.Tensor] = {}
+            orbit = orbit_views(orbit_root / "objects" / folder.name, scene, li)
             rep, pred = evaluate_field(fit.field, gt, perceptual=metric)
-            row["variants"]["unrelit"] = {**scores(rep), "phase_seconds": {}, "seconds": 0.0}
+            row["variants"]["unrelit"] = {
+                **scores(rep),
+                **orbit_flicker(fit.field, orbit),
+                "phase_seconds": {},
+                "seconds": 0.0,
+            }
             renders_of["unrelit"] = pred
             relit_views = None
             relit_s = 0.0
@@ -374,6 +501,8 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                 views, oracle, g = relit_views, None, guide
                 if variant == "full-whole":  # its own relit views, from whole frames
                     views, g = None, guide_whole
+                elif variant == "full-shared":  # its own relit views, one noise for all
+                    views, g = None, guide_shared
                 elif variant == "stage1-oracle":
                     views, oracle = None, gt_scene.train.rgb_srgb.permute(0, 3, 1, 2).contiguous()
                 elif cfg.stage1 is None:
@@ -397,7 +526,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                     "encode": round(r.encode_seconds, 3),
                     "relit views": round(
                         r.relight_views_seconds
-                        if variant == "full-whole"
+                        if variant in ("full-whole", "full-shared")
                         else (relit_s if uses_relit else 0.0),
                         3,
                     ),
@@ -407,6 +536,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                 rep, pred = evaluate_field(res.field, gt, perceptual=metric)
                 row["variants"][variant] = {
                     **scores(rep),
+                    **orbit_flicker(res.field, orbit),
                     "phase_seconds": phases,
                     "seconds": round(sum(phases.values()), 3),
                     "stage2_final_loss": None
@@ -508,6 +638,8 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         "stlpips_crop",
         "psnr_object_aligned_db",
         "psnr_full_frame_db",
+        "orbit_flicker",
+        "orbit_energy_ratio",
         "seconds",
     )
     out: dict[str, Any] = {}
@@ -542,7 +674,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
                 out["full"]["psnr_object_db"] - out[other]["psnr_object_db"], 3
             ),
         }
-        for other in ("unrelit", "sds-only", "stage1", "sds-stage2", "full-whole")
+        for other in ("unrelit", "sds-only", "stage1", "sds-stage2", "full-whole", "full-shared")
     }
     f, u, sds = out["full"], out["unrelit"], out["sds-only"]
     out["full_beats_unrelit_and_sds_on_mean_psnr"] = bool(
@@ -612,8 +744,9 @@ def markdown(payload: dict[str, Any]) -> str:
         f"{s['fit_seconds_mean']:.0f} s per object (not in the seconds below).",
         "",
         "| variant | object PSNR (dB) | object SSIM | ST-LPIPS crop | aligned PSNR (dB) | "
-        "full-frame PSNR (dB) | relight s | relit views / stage 1 / stage 2 s |",
-        "|---|---|---|---|---|---|---|---|",
+        "full-frame PSNR (dB) | orbit flicker (energy ratio) | relight s | "
+        "relit views / stage 1 / stage 2 s |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for k in VARIANTS:
         r = s[k]
@@ -622,7 +755,7 @@ def markdown(payload: dict[str, Any]) -> str:
         lines.append(
             f"| {LABELS[k]} | {r['psnr_object_db']:.2f} | {r['ssim_object']:.4f} | {lp} | "
             f"{r['psnr_object_aligned_db']:.2f} | {r['psnr_full_frame_db']:.2f} | "
-            f"{r['seconds']:.1f} | {ph['relit views']:.1f} / {ph['stage 1']:.1f} / "
+            f"{r['orbit_flicker']:.4f} ({r['orbit_energy_ratio']:.2f}) | {r['seconds']:.1f} | {ph['relit views']:.1f} / {ph['stage 1']:.1f} / "
             f"{ph['stage 2']:.1f} |"
         )
     fb = s["full_beats"]
@@ -634,7 +767,10 @@ def markdown(payload: dict[str, Any]) -> str:
         f"({fb['sds-only']['psnr_object_pairs']}/{s['pairs']}); full vs Stage 1 only: "
         f"{fb['stage1']['mean_psnr_object_gain_db']:+.2f} dB "
         f"({fb['stage1']['psnr_object_pairs']}/{s['pairs']}). The oracle row is Stage 1 fitted to "
-        "Cycles renders of the training views under the target (a ceiling, not a method).",
+        "Cycles renders of the training views under the target (a ceiling, not a method). Orbit "
+        "flicker: `gaffer_nerf.flicker.temporal_flicker` along a closed 16-frame Cycles orbit under "
+        "the target (mean |frame-to-frame change - the truth's| in the object mask, sRGB; 0 = none; "
+        "energy ratio > 1: the sequence changes more than the truth).",
     ]
     return "\n".join(lines)
 

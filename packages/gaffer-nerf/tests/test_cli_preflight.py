@@ -75,6 +75,7 @@ CASES = [
     ("fit {data} --out {out} --rank-ladder 1 0.5", "strictly increasing"),
     (RL + " --target-lighting 1 --stage1-iterations 0", "`--stage1-iterations` is 0"),
     (RL + " --target-lighting 1 --steps 0", "steps"),
+    (RL + " --target-lighting 1 --stage1-transfer-radius -1", "`--stage1-transfer-radius` is -1"),
     (RL + " --target-lighting 9", "`--target-lighting` is 9"),
     (RL + " --input-lighting 3 --target-lighting 1", "`--input-lighting` is 3"),
     (RL, "Pass `--target-lighting K`"),

@@ -7,6 +7,7 @@
         [--sanitize raise|strict|zero|clamp] [--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny]
         --out RELIT [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
+        [--stage1-detail model|transfer [--stage1-transfer-radius R]]
         [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
         [--shared-noise] [--object-fraction F|whole]
     gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
@@ -152,6 +153,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--stage1-iterations", type=int, help="override the preset's Stage 1 iterations")
     r.add_argument("--stage2-iterations", type=int, help="override the preset's Stage 2 iterations")
+    r.add_argument(
+        "--stage1-detail",
+        choices=("model", "transfer"),
+        help="Stage 1 fits the relit views as the model made them (model: the paper) or the input "
+        "views times the model's change of shading, keeping their texture (transfer) "
+        "(default: the preset's)",
+    )
+    r.add_argument(
+        "--stage1-transfer-radius",
+        type=int,
+        help="box half-width in view pixels the shading change is averaged over with "
+        "--stage1-detail transfer (default: the preset's)",
+    )
     r.add_argument(
         "--steps",
         type=int,
@@ -366,10 +380,22 @@ def _relight_config(args: argparse.Namespace) -> Any:
     ):
         if value is not None and value < 1:
             raise ConfigError(f"`{flag}` is {value}; expected an int >= 1 (leave it out: preset).")
-    if cfg.stage1 is not None and args.stage1_iterations is not None:
-        cfg = dataclasses.replace(
-            cfg, stage1=dataclasses.replace(cfg.stage1, iterations=args.stage1_iterations)
+    if args.stage1_transfer_radius is not None and args.stage1_transfer_radius < 0:
+        raise ConfigError(
+            f"`--stage1-transfer-radius` is {args.stage1_transfer_radius}; expected an int >= 0 "
+            "(0: the shading change pixel by pixel)."
         )
+    if cfg.stage1 is not None:
+        s1_over: dict[str, Any] = {
+            k: v
+            for k, v in (
+                ("iterations", args.stage1_iterations),
+                ("target_detail", args.stage1_detail),
+                ("transfer_radius_px", args.stage1_transfer_radius),
+            )
+            if v is not None
+        }
+        cfg = dataclasses.replace(cfg, stage1=dataclasses.replace(cfg.stage1, **s1_over))
     if cfg.stage2 is not None:
         s2 = dataclasses.replace(cfg.stage2, t_schedule=args.t_schedule)
         if args.stage2_iterations is not None:

@@ -25,6 +25,10 @@ SizingMode = Literal["fixed", "footprint"]
 TStarSchedule = Literal["exponential", "authors"]
 """Stage-2 noise level t*: the paper's exponential decay, or the authors' effectively constant one."""
 
+TargetDetail = Literal["model", "transfer"]
+"""Stage-1 targets: the relit views as the model made them (paper), or the model's change of shading
+applied to the input views (their texture kept; `gaffer_nerf.relight.detail`)."""
+
 Stage2Loss = Literal["guidance", "sds"]
 """Stage-2 objective: the paper's diffusion guidance loss (Eq. 3) or score distillation (baseline)."""
 
@@ -535,6 +539,12 @@ class Stage1Config:
         lr_decay_ratio: exponential decay of both over the stage (1.0: constant; the reference lists
             no decay for this stage).
         betas: Adam betas (0.9, 0.99).
+        target_detail: "model" (the paper: fit the relit views as the model made them) or
+            "transfer" (fit the input views times the model's change of shading, smoothed over
+            `transfer_radius_px`: the input's texture survives a model that blurs it;
+            `gaffer_nerf.relight.detail.transfer_shading`).
+        transfer_radius_px: half-width, in view pixels, of the box the log shading ratio is
+            averaged over ("transfer" only; 0: the ratio pixel by pixel).
     """
 
     iterations: int = 2500
@@ -543,11 +553,21 @@ class Stage1Config:
     lr_network: float = 1e-3
     lr_decay_ratio: float = 1.0
     betas: tuple[float, float] = (0.9, 0.99)
+    target_detail: TargetDetail = "model"
+    transfer_radius_px: int = 2
 
     def __post_init__(self) -> None:
         if self.iterations < 1 or self.batch_rays < 1:
             raise ConfigError(
                 f"`iterations`={self.iterations} and `batch_rays`={self.batch_rays} must be >= 1."
+            )
+        if self.target_detail not in ("model", "transfer"):
+            raise ConfigError(
+                f"`target_detail`={self.target_detail!r} must be 'model' or 'transfer'."
+            )
+        if self.transfer_radius_px < 0:
+            raise ConfigError(
+                f"`transfer_radius_px`={self.transfer_radius_px} must be >= 0 (0: per pixel)."
             )
         for name in ("lr_grid", "lr_network", "lr_decay_ratio"):
             _positive(name, getattr(self, name))

@@ -3,7 +3,8 @@
 1. Freeze the density; march every training ray once and cache its sample weights.
 2. Encode every training view with the target lighting in its camera frame (one batched pass).
 3. Stage 1 (unless ablated): relight every training view with the diffusion model (batched), fit the
-   appearance to them with L2 on random rays.
+   appearance to them with L2 on random rays (or, with `Stage1Config.target_detail="transfer"`, to
+   the input views times the model's change of shading: `gaffer_nerf.relight.detail`).
 4. Stage 2 (unless ablated): refine with the guidance loss (or SDS) one full view per step.
 
 The input field is not modified: a deep copy is relit and returned.
@@ -26,6 +27,7 @@ from gaffer_nerf.fields.tensorf import TensoRFVM
 from gaffer_nerf.guidance.diffusion import DiffusionGuide, TargetLighting
 from gaffer_nerf.guidance.perceptual import PerceptualLoss
 from gaffer_nerf.relight._common import StageReport
+from gaffer_nerf.relight.detail import transfer_shading
 from gaffer_nerf.relight.stage1 import run_stage1
 from gaffer_nerf.relight.stage2 import run_stage2
 from gaffer_nerf.rendering import build_weight_cache
@@ -153,7 +155,12 @@ def relight_field(
     # the model sees each view as it was trained to (object-centred crops for gaffer-tiny): boxes
     # from the training alpha, else from the fitted field's opacity along the training rays
     alpha = train.alpha
-    if alpha is None and guide.sampling.crop_fraction is not None:
+    wants_transfer = (
+        config.stage1 is not None
+        and stage1_targets is None
+        and config.stage1.target_detail == "transfer"
+    )
+    if alpha is None and (guide.sampling.crop_fraction is not None or wants_transfer):
         alpha = (1.0 - cache.background).reshape(train.num_views, h, w).cpu()
     framing = guide.framing(alpha)
     conditions = guide.encode_views(images, lighting, framing)
@@ -179,6 +186,8 @@ def relight_field(
             targets = F.interpolate(
                 targets, size=(h, w), mode="bilinear", antialias=True, align_corners=False
             )
+        if wants_transfer and alpha is not None:  # the input's texture, the model's light
+            targets = transfer_shading(images, targets, alpha, config.stage1.transfer_radius_px)
         targets_rgb = targets.permute(0, 2, 3, 1).reshape(-1, 3)  # view-major, row-major rays
         s1 = run_stage1(out, cache, targets_rgb, config.stage1, generator=gen, progress=progress)
     s2 = None
