@@ -166,3 +166,21 @@ def test_cli_flags_reach_stage1() -> None:
         preset.target_detail,
         preset.transfer_radius_px,
     )
+
+
+def test_shared_noise_is_the_tiny_presets_and_the_flag_overrides_it() -> None:
+    """The tiny preset relights every view from one noise (chosen on the validation split of
+    bench_nerf_noise_val.py); `--no-shared-noise` / `--shared-noise` override any preset."""
+    from gaffer_nerf.cli import _parser, _relight_config
+
+    base = ["relight", "f", "--data", "d", "--out", "o", "--target-lighting", "1"]
+
+    def shared(*extra: str) -> bool:
+        return _relight_config(_parser().parse_args([*base, *extra])).diffusion.shared_noise
+
+    assert relight_preset("tiny").diffusion.shared_noise is True
+    assert relight_preset("paper").diffusion.shared_noise is False
+    assert shared("--preset", "tiny") is True
+    assert shared("--preset", "tiny", "--no-shared-noise") is False
+    assert shared("--preset", "paper") is False
+    assert shared("--preset", "paper", "--shared-noise") is True

@@ -9,7 +9,7 @@
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
         [--stage1-detail model|transfer [--stage1-transfer-radius R]]
         [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
-        [--shared-noise] [--object-fraction F|whole]
+        [--[no-]shared-noise] [--object-fraction F|whole]
     gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
     gaffer-nerf evaluate FIELD --data DATA --target-lighting K [--split test] [--json F]
 
@@ -189,9 +189,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument(
         "--shared-noise",
-        action="store_true",
-        help="Stage 1: start every view from the same noise (30%% less flicker between the relit "
-        "views, but 0.6 dB lower relit field on the sphere benchmark; default: per-view noise)",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="start every view's relighting from the same noise (default: the preset's; tiny: "
+        "shared, chosen on real renders' validation split: +0.9 dB, lower ST-LPIPS; paper: "
+        "per-view noise)",
     )
     r.add_argument(
         "--object-fraction",
@@ -410,8 +412,8 @@ def _relight_config(args: argparse.Namespace) -> Any:
         "object_fraction": args.object_fraction,
     }
     given = {k: v for k, v in overrides.items() if v is not None}
-    if args.shared_noise:
-        given["shared_noise"] = True
+    if args.shared_noise is not None:
+        given["shared_noise"] = args.shared_noise
     if given:  # DiffusionSamplingConfig refuses bad values naming the flag
         cfg = dataclasses.replace(cfg, diffusion=dataclasses.replace(cfg.diffusion, **given))
     return cfg
