@@ -548,8 +548,16 @@ def _relight(args: argparse.Namespace) -> int:
         names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
         write_images(res.relit_views, args.out / "relit_views", names)
     r = res.report
+    s1 = cfg.stage1
+    targets = (
+        ""
+        if s1 is None
+        else ", stage 1 fits the model's views"
+        if s1.target_detail == "model"
+        else f", stage 1 fits its change of shading on the input views (radius {s1.transfer_radius_px} px)"
+    )
     print(
-        f"relight ({args.ablation}): relit views {r.relight_views_seconds:.1f} s, stage 1 "
+        f"relight ({args.ablation}{targets}): relit views {r.relight_views_seconds:.1f} s, stage 1 "
         f"{r.stage1.seconds if r.stage1 else 0:.1f} s, stage 2 {r.stage2.seconds if r.stage2 else 0:.1f} s, "
         f"total {r.total_seconds:.1f} s -> {args.out}"
     )
