@@ -35,8 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import _common as common
-import bench_nerf_real as real
-import numpy as np
+import _nerf_val as val
 
 NAME = "nerf_stage2_val"
 
@@ -58,198 +57,85 @@ SETTINGS: dict[str, dict[str, Any]] = {
     "60 steps, lr / 4": {"iterations": 60, "lr_grid": 0.005, "lr_network": 2.5e-4},
 }
 QUICK_SETTINGS = ("paper shape", "t* 0.2->0.02", "lr / 4")
-KEYS = (
-    "psnr_object_db",
-    "psnr_object_aligned_db",
-    "ssim_object",
-    "stlpips_crop",
-    "psnr_full_frame_db",
-    "seconds",
-)
 
 
 def run(quick: bool, seed: int, only: Sequence[str] | None = None) -> dict[str, Any]:
-    from gaffer_diffusion import RelightPipeline, RuntimeConfig
-    from gaffer_diffusion.errors import MetricUnavailableError
-    from gaffer_diffusion.metrics import load_perceptual
-    from gaffer_nerf import (
-        evaluate_field,
-        fit_preset,
-        fit_tensorf,
-        load_perceptual_loss,
-        read_gaffer_data_object,
-        relight_field,
-        relight_preset,
-    )
-    from gaffer_nerf.data import load_lighting_envmap
-    from gaffer_nerf.guidance import DiffusionGuide
-    from gaffer_nerf.guidance.model import load_relighting_model
+    from gaffer_nerf import relight_field
 
-    split = real.VALIDATION
-    n_objects = 1 if quick else real.NUM_OBJECTS
-    targets = split.targets[:1] if quick else split.targets
-    fit_iters = real.QUICK["fit"] if quick else real.FIT_ITERATIONS
-    s1_iters = real.QUICK["stage1"] if quick else real.STAGE1_ITERATIONS
-    s2_iters = real.QUICK["stage2"] if quick else real.STAGE2_ITERATIONS
+    sweep = val.prepare(quick, seed, only)
     names = QUICK_SETTINGS if quick else tuple(SETTINGS)
-
-    root = real.renders(n_objects, split)
-    folders = sorted(
-        p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
-    )[:n_objects]
-    if only:  # a part of the sweep (`--objects`), merged later with `--merge`
-        folders = [f for f in folders if f.name in only]
-        if len(folders) != len(only):
-            raise RuntimeError(f"--objects {list(only)}: not all among the rendered objects")
-    base = fit_preset("tiny")
-    fit_cfg = dataclasses.replace(
-        base,
-        iterations=fit_iters,
-        seed=seed,
-        sizing=dataclasses.replace(base.sizing, mode="footprint"),
-    )
-    rcfg = relight_preset("tiny")
-    if rcfg.stage1 is None or rcfg.stage2 is None:
-        raise RuntimeError("relight_preset('tiny') lost a stage")
+    # The preset as it was when this sweep ran: Stage 1 on the model's own views, a noise per view,
+    # and Stage 2 from the paper's learning rates (BASE_LR; the preset's quarter rates are its
+    # winner since), so that a rerun measures the same settings.
+    r0 = sweep.relight_cfg
     rcfg = dataclasses.replace(
-        rcfg,
-        seed=seed,
-        stage1=dataclasses.replace(rcfg.stage1, iterations=s1_iters),
-        # the sweep's base is the setting it was run from (the paper's learning rates), not the
-        # preset's current ones (its winner since), so that a rerun measures the same settings
-        stage2=dataclasses.replace(
-            rcfg.stage2,
-            iterations=s2_iters,
-            lr_gamma=0.1 ** (1.0 / max(s2_iters, 1)),
-            **BASE_LR,
-        ),
+        r0,
+        stage1=dataclasses.replace(r0.stage1, target_detail="model"),
+        stage2=dataclasses.replace(r0.stage2, **BASE_LR),
     )
-    loaded = load_relighting_model(None)
-    guide = DiffusionGuide(
-        RelightPipeline(loaded.model, RuntimeConfig(device="cpu", dtype="float32")),
-        rcfg.diffusion,
-        loaded.suggested,
-    )
-    perceptual_loss = load_perceptual_loss()
-    try:
-        metric: Any = load_perceptual()
-    except MetricUnavailableError as exc:
-        common.log(f"  ST-LPIPS unavailable ({exc}); scored without it")
-        metric = None
+    guide = sweep.guide(shared_noise=False)
+    s2_iters = rcfg.stage2.iterations
 
     def stage2_of(name: str) -> Any:
         over = dict(SETTINGS[name])
         steps = int(over.get("iterations", s2_iters))
         over.setdefault("lr_gamma", 0.1 ** (1.0 / steps))
-        assert rcfg.stage2 is not None  # checked above; narrows for the type checker
         return dataclasses.replace(rcfg.stage2, **over)
 
     pairs: list[dict[str, Any]] = []
-    for folder in folders:
-        idx = real.lighting_indices(read_gaffer_data_object(folder))
-        scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
-        fit = fit_tensorf(scene.train, fit_cfg)
-        for target in targets:
-            li = idx[target]
-            gt = read_gaffer_data_object(folder, lighting_index=li).test
-            if gt is None:
-                raise RuntimeError(f"{folder} has no test views")
-            env = load_lighting_envmap(scene.lighting(li), root.parent / "held" / "envmaps")
-            row: dict[str, Any] = {"object": folder.name, "target": target, "rows": {}}
-            rep, _ = evaluate_field(fit.field, gt, perceptual=metric)
-            row["rows"]["unrelit"] = {**real.scores(rep), "seconds": 0.0}
-            s1 = relight_field(
+    for pair in val.pairs(sweep):
+        fit, train, env, gt = pair.fit, pair.scene.train, pair.envmap, pair.ground_truth
+        row: dict[str, Any] = {"object": pair.folder.name, "target": pair.target, "rows": {}}
+        row["rows"]["unrelit"] = val.score(sweep, fit.field, gt, 0.0)
+        s1 = relight_field(
+            fit.field, train, env, guide, rcfg.with_ablation("no-stage2"), sweep.perceptual_loss
+        )
+        st1 = s1.report.stage1
+        row["rows"]["stage 1 only"] = val.score(sweep, s1.field, gt, st1.seconds if st1 else 0.0)
+        sds = relight_field(
+            fit.field, train, env, guide, rcfg.with_ablation("sds-only"), sweep.perceptual_loss
+        )
+        st2 = sds.report.stage2
+        row["rows"]["SDS only"] = val.score(sweep, sds.field, gt, st2.seconds if st2 else 0.0)
+        for name in names:
+            cfg = dataclasses.replace(rcfg, stage2=stage2_of(name)).with_ablation("full")
+            t0 = time.perf_counter()
+            res = relight_field(
                 fit.field,
-                scene.train,
+                train,
                 env,
                 guide,
-                rcfg.with_ablation("no-stage2"),
-                perceptual_loss,
+                cfg,
+                sweep.perceptual_loss,
+                relit_views=s1.relit_views,
             )
-            rep, _ = evaluate_field(s1.field, gt, perceptual=metric)
-            r = s1.report
-            row["rows"]["stage 1 only"] = {
-                **real.scores(rep),
-                "seconds": round(r.stage1.seconds if r.stage1 else 0.0, 3),
+            wall = time.perf_counter() - t0
+            st2 = res.report.stage2
+            row["rows"][name] = {
+                **val.score(sweep, res.field, gt, st2.seconds if st2 else 0.0),
+                "wall_seconds": round(wall, 3),
             }
-            sds = relight_field(
-                fit.field,
-                scene.train,
-                env,
-                guide,
-                rcfg.with_ablation("sds-only"),
-                perceptual_loss,
-            )
-            rep, _ = evaluate_field(sds.field, gt, perceptual=metric)
-            row["rows"]["SDS only"] = {
-                **real.scores(rep),
-                "seconds": round(sds.report.stage2.seconds if sds.report.stage2 else 0.0, 3),
-            }
-            for name in names:
-                cfg = dataclasses.replace(rcfg, stage2=stage2_of(name)).with_ablation("full")
-                t0 = time.perf_counter()
-                res = relight_field(
-                    fit.field,
-                    scene.train,
-                    env,
-                    guide,
-                    cfg,
-                    perceptual_loss,
-                    relit_views=s1.relit_views,
-                )
-                wall = time.perf_counter() - t0
-                rep, _ = evaluate_field(res.field, gt, perceptual=metric)
-                st2 = res.report.stage2
-                row["rows"][name] = {
-                    **real.scores(rep),
-                    "seconds": round(st2.seconds if st2 else 0.0, 3),
-                    "wall_seconds": round(wall, 3),
-                }
-            pairs.append(row)
-            common.log(
-                f"  {folder.name} -> {target}: "
-                + ", ".join(f"{k} {v['psnr_object_db']:.2f}" for k, v in row["rows"].items())
-            )
-    return {
-        "config": {
-            "quick": quick,
-            "seed": seed,
-            "split": split.name,
-            "objects": [f.name for f in folders],
-            "objects_from": f"gaffer-data recipe --procedural {real.NUM_OBJECTS} --seed "
-            f"{split.object_seed}",
-            "input_lighting": real.INPUT_HDRI,
-            "target_lightings": list(targets),
-            "target_lightings_are": split.targets_are,
-            "fit_iterations": fit_iters,
-            "stage1_iterations": s1_iters,
-            "stage2_iterations_default": s2_iters,
-            "settings": {n: SETTINGS[n] for n in names},
-            "selection_rule": (
-                "highest mean object PSNR (raw) among the Stage-2 settings whose mean ST-LPIPS is "
-                "no worse than Stage 1 only; else the highest PSNR"
-            ),
-            "model": loaded.name,
-        },
-        "pairs": pairs,
-    }
+        pairs.append(row)
+        val.log_pair(row)
+    config = sweep.config(
+        stage2_iterations_default=s2_iters,
+        settings={n: SETTINGS[n] for n in names},
+        selection_rule=(
+            "highest mean object PSNR (raw) among the Stage-2 settings whose mean ST-LPIPS is "
+            "no worse than Stage 1 only; else the highest PSNR"
+        ),
+    )
+    return {"config": config, "pairs": pairs}
 
 
 def summarise(result: dict[str, Any]) -> dict[str, Any]:
-    pairs = result["pairs"]
-    rows = list(pairs[0]["rows"])
-    out: dict[str, Any] = {}
-    for name in rows:
-        vals = {}
-        for key in KEYS:
-            xs = [p["rows"][name][key] for p in pairs if p["rows"][name].get(key) is not None]
-            vals[key] = round(float(np.mean(xs)), 4) if xs else None
-        vals["wins_vs_stage1_psnr"] = sum(
-            p["rows"][name]["psnr_object_db"] > p["rows"]["stage 1 only"]["psnr_object_db"]
-            for p in pairs
-        )
-        out[name] = vals
-    settings = [n for n in rows if n in SETTINGS]
+    out = val.means(
+        result["pairs"],
+        "stage 1 only",
+        "wins_vs_stage1_psnr",
+        lambda row, ref: row["psnr_object_db"] > ref["psnr_object_db"],
+    )
+    settings = [n for n in out if n in SETTINGS]
     s1_lp = out["stage 1 only"]["stlpips_crop"]
     ok = [
         n
@@ -303,22 +189,19 @@ def plot(payload: dict[str, Any]) -> Any:
 
 
 def markdown(payload: dict[str, Any]) -> str:
-    m = payload["summary"]["means"]
     lines = [
-        "| setting | object PSNR raw | aligned | SSIM | ST-LPIPS | full frame | Stage-2 s | "
-        "> Stage 1 (pairs) |",
-        "|---|---|---|---|---|---|---|---|",
+        val.table(
+            payload["summary"]["means"],
+            len(payload["pairs"]),
+            "setting",
+            "Stage-2 s",
+            "wins_vs_stage1_psnr",
+            "> Stage 1 (pairs)",
+            lpips_digits=3,
+        ),
+        "",
+        f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.",
     ]
-    n = len(payload["pairs"])
-    for name, v in m.items():
-        lp = "-" if v["stlpips_crop"] is None else f"{v['stlpips_crop']:.3f}"
-        lines.append(
-            f"| {name} | {v['psnr_object_db']:.2f} | {v['psnr_object_aligned_db']:.2f} | "
-            f"{v['ssim_object']:.3f} | {lp} | {v['psnr_full_frame_db']:.2f} | "
-            f"{v['seconds']:.1f} | {v['wins_vs_stage1_psnr']}/{n} |"
-        )
-    lines.append("")
-    lines.append(f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.")
     return "\n".join(lines)
 
 
