@@ -235,6 +235,20 @@ def table(
     return "\n".join(lines)
 
 
+def report(
+    payload: dict[str, Any], first: str, seconds: str, wins_key: str, wins: str, **kw: Any
+) -> str:
+    """`table` of the payload's means and the line naming the setting the rule chose."""
+    means = payload["summary"]["means"]
+    return "\n".join(
+        [
+            table(means, len(payload["pairs"]), first, seconds, wins_key, wins, **kw),
+            "",
+            f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.",
+        ]
+    )
+
+
 def scatter(payload: dict[str, Any], what: str, floor_db: float | None = None) -> Any:
     """Object PSNR against ST-LPIPS, one point per setting (the chosen one red, unrelit grey)."""
     import matplotlib

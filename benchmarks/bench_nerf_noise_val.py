@@ -85,19 +85,9 @@ def plot(payload: dict[str, Any]) -> Any:
 
 
 def markdown(payload: dict[str, Any]) -> str:
-    lines = [
-        val.table(
-            payload["summary"]["means"],
-            len(payload["pairs"]),
-            "full method",
-            "relight s",
-            "psnr_wins_vs_per_view",
-            "PSNR > per-view (pairs)",
-        ),
-        "",
-        f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.",
-    ]
-    return "\n".join(lines)
+    return val.report(
+        payload, "full method", "relight s", "psnr_wins_vs_per_view", "PSNR > per-view (pairs)"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -310,24 +310,7 @@ def orbit_views(orbit_folder: Path, scene: Any, lighting_index: int) -> Any:
         )
     views = read_gaffer_data_object(orbit_folder, lighting_index=lighting_index).train
     centre = views.cameras.c2w_opencv[:, :3, 3]
-    order = torch.argsort(torch.atan2(centre[:, 1], centre[:, 0])).tolist()
-    from gaffer_nerf.cameras import Cameras
-
-    c = views.cameras
-    i = torch.tensor(order)
-    return dataclasses.replace(
-        views,
-        rgb_srgb=views.rgb_srgb[i],
-        alpha=None if views.alpha is None else views.alpha[i],
-        cameras=Cameras(
-            c2w_opencv=c.c2w_opencv[i],
-            focal_px=c.focal_px[i],
-            principal_px=c.principal_px[i],
-            width=c.width,
-            height=c.height,
-        ),
-        names=tuple(views.names[j] for j in order),
-    )
+    return views.select(torch.argsort(torch.atan2(centre[:, 1], centre[:, 0])).tolist())
 
 
 def lighting_indices(scene: Any) -> dict[str, int]:

@@ -95,34 +95,6 @@ def _fits(quick: bool, seed: int) -> list[dict[str, Any]]:
     return rows
 
 
-def _take(views: Any, idx: Sequence[int]) -> Any:
-    """The views `idx` of a ViewSet (cameras, images, alpha, names)."""
-    from gaffer_nerf.cameras import Cameras
-
-    i = torch_index(idx)
-    c = views.cameras
-    cams = Cameras(
-        c2w_opencv=c.c2w_opencv[i],
-        focal_px=c.focal_px[i],
-        principal_px=c.principal_px[i],
-        width=c.width,
-        height=c.height,
-    )
-    return dataclasses.replace(
-        views,
-        rgb_srgb=views.rgb_srgb[i],
-        alpha=None if views.alpha is None else views.alpha[i],
-        cameras=cams,
-        names=tuple(views.names[j] for j in idx),
-    )
-
-
-def torch_index(idx: Sequence[int]) -> Any:
-    import torch
-
-    return torch.tensor(list(idx), dtype=torch.long)
-
-
 def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
     import bench_nerf_real as real
 
@@ -153,8 +125,8 @@ def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
         scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
         assert scene.test is not None
         n = scene.train.num_views
-        fitted = _take(scene.train, [i for i in range(n) if i not in EARLY_STOP_VIEWS])
-        heldout = _take(scene.train, EARLY_STOP_VIEWS)
+        fitted = scene.train.select([i for i in range(n) if i not in EARLY_STOP_VIEWS])
+        heldout = scene.train.select(list(EARLY_STOP_VIEWS))
         if warm:  # a short untimed fit first, so that the first timed fit pays no start-up cost
             fit_tensorf(fitted, dataclasses.replace(base, iterations=60, early_stopping=None))
             warm = False

@@ -112,19 +112,9 @@ def plot(payload: dict[str, Any]) -> Any:
 
 
 def markdown(payload: dict[str, Any]) -> str:
-    lines = [
-        val.table(
-            payload["summary"]["means"],
-            len(payload["pairs"]),
-            "Stage 1 targets",
-            "Stage-1 s",
-            "stlpips_wins_vs_model",
-            "ST-LPIPS < model (pairs)",
-        ),
-        "",
-        f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.",
-    ]
-    return "\n".join(lines)
+    return val.report(
+        payload, "Stage 1 targets", "Stage-1 s", "stlpips_wins_vs_model", "ST-LPIPS < model (pairs)"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:

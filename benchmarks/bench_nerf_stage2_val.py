@@ -189,20 +189,9 @@ def plot(payload: dict[str, Any]) -> Any:
 
 
 def markdown(payload: dict[str, Any]) -> str:
-    lines = [
-        val.table(
-            payload["summary"]["means"],
-            len(payload["pairs"]),
-            "setting",
-            "Stage-2 s",
-            "wins_vs_stage1_psnr",
-            "> Stage 1 (pairs)",
-            lpips_digits=3,
-        ),
-        "",
-        f"Chosen by the fixed rule: **{payload['summary']['chosen']}**.",
-    ]
-    return "\n".join(lines)
+    return val.report(
+        payload, "setting", "Stage-2 s", "wins_vs_stage1_psnr", "> Stage 1 (pairs)", lpips_digits=3
+    )
 
 
 def merge(paths: Sequence[Path]) -> dict[str, Any]:

@@ -91,3 +91,17 @@ def test_envmap_augmentation_is_applied(written) -> None:
     ref = written.envmaps[1].radiance_linear[:, ::-1]
     ref = np.roll(ref, -(ref.shape[1] // 4), axis=1)
     np.testing.assert_allclose(env.radiance_linear, ref, rtol=1e-3)
+
+
+def test_viewset_select_keeps_images_cameras_and_names_together(written) -> None:
+    """`ViewSet.select` picks views in the order given, every per-view field alike."""
+    views = read_gaffer_data_object(written.root, lighting_index=0).train
+    order = [3, 0, 2]
+    sub = views.select(order)
+    assert sub.num_views == 3 and sub.names == tuple(views.names[k] for k in order)
+    assert torch.equal(sub.rgb_srgb, views.rgb_srgb[order])
+    assert views.alpha is not None and sub.alpha is not None
+    assert torch.equal(sub.alpha, views.alpha[order])
+    assert torch.equal(sub.cameras.c2w_opencv, views.cameras.c2w_opencv[order])
+    assert torch.equal(sub.cameras.rays([0]).dirs_world, views.cameras.rays([3]).dirs_world)
+    assert sub.lighting_index == views.lighting_index

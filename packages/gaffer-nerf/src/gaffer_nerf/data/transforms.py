@@ -14,7 +14,7 @@ truth. PNGs are sRGB with straight alpha; they are composited over white as the 
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +76,17 @@ class ViewSet:
     def rgb_flat(self) -> Float[Tensor, "N 3"]:
         """Pixels in the order of `cameras.rays()` (view-major, row-major)."""
         return self.rgb_srgb.reshape(-1, 3)
+
+    def select(self, index: list[int]) -> "ViewSet":
+        """The views at `index`, in that order (images, alpha, cameras and names together)."""
+        i = torch.as_tensor(index, dtype=torch.long)
+        return replace(
+            self,
+            rgb_srgb=self.rgb_srgb[i],
+            alpha=None if self.alpha is None else self.alpha[i],
+            cameras=self.cameras.select(i),
+            names=tuple(self.names[k] for k in index),
+        )
 
 
 @dataclass(frozen=True, kw_only=True)
