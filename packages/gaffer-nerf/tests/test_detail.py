@@ -2,6 +2,7 @@
 
 import dataclasses
 import inspect
+import math
 
 import jaxtyping
 import pytest
@@ -10,7 +11,12 @@ import torch
 from gaffer_diffusion import RelightPipeline
 from gaffer_diffusion.detail_transfer import linear_to_srgb, srgb_to_linear
 from gaffer_diffusion.testing import tiny_model
-from gaffer_nerf.configs import DiffusionSamplingConfig, Stage1Config, relight_preset
+from gaffer_nerf.configs import (
+    DiffusionSamplingConfig,
+    Stage1Config,
+    Stage2Config,
+    relight_preset,
+)
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.guidance import DiffusionGuide, unavailable_perceptual
 from gaffer_nerf.relight import relight_field
@@ -92,11 +98,12 @@ def test_shapes_are_checked() -> None:
         unchecked(img, img, alpha[:1], 1)
 
 
-def test_config_refuses_bad_values() -> None:
+@pytest.mark.parametrize("config_class", [Stage1Config, Stage2Config])
+def test_config_refuses_bad_values(config_class) -> None:
     with pytest.raises((ConfigError, jaxtyping.TypeCheckError), match="target_detail"):
-        Stage1Config(target_detail="sharpen")  # type: ignore[arg-type]
+        config_class(target_detail="sharpen")
     with pytest.raises(ConfigError, match="transfer_radius_px"):
-        Stage1Config(transfer_radius_px=-1)
+        config_class(transfer_radius_px=-1)
 
 
 def test_relight_field_fits_the_transferred_targets(fitted, scene, monkeypatch) -> None:
@@ -184,3 +191,45 @@ def test_shared_noise_is_the_tiny_presets_and_the_flag_overrides_it() -> None:
     assert shared("--preset", "tiny", "--no-shared-noise") is False
     assert shared("--preset", "paper") is False
     assert shared("--preset", "paper", "--shared-noise") is True
+
+
+@pytest.mark.parametrize("detail", ["model", "transfer"])
+def test_stage2_transfers_the_guidance_target_only_when_asked(
+    fitted, scene, monkeypatch, detail: str
+) -> None:
+    """`Stage2Config.target_detail="transfer"`: every guidance step's target is the render times the
+    model's change of shading, with the field's opacity cropped as the model sees the view."""
+    import gaffer_nerf.relight.stage2 as stage2_mod
+
+    calls: list[tuple[tuple[int, ...], float, float, int]] = []
+    real_transfer = stage2_mod.transfer_shading
+
+    def spy(inputs, relit, alpha, radius):
+        calls.append((tuple(alpha.shape), float(alpha.min()), float(alpha.max()), radius))
+        return real_transfer(inputs, relit, alpha, radius)
+
+    monkeypatch.setattr(stage2_mod, "transfer_shading", spy)
+    cfg = relight_preset("tiny", "no-stage1")
+    assert cfg.stage2 is not None
+    diffusion = DiffusionSamplingConfig(object_fraction=0.75, num_inference_steps=2)
+    cfg = dataclasses.replace(
+        cfg,
+        diffusion=diffusion,
+        stage2=dataclasses.replace(
+            cfg.stage2, iterations=3, target_detail=detail, transfer_radius_px=5
+        ),
+    )
+    guide = DiffusionGuide(RelightPipeline(tiny_model()), diffusion)
+    res = relight_field(
+        fitted.field, scene.train, scene.env_target, guide, cfg,
+        unavailable_perceptual("not requested"),
+    )  # fmt: skip
+    assert res.report.stage2 is not None
+    assert all(math.isfinite(x) for x in res.report.stage2.losses)
+    if detail == "model":
+        assert calls == []
+    else:
+        assert len(calls) == 3
+        for shape, lo, hi, radius in calls:
+            assert shape == (1, guide.resolution, guide.resolution) and radius == 5
+            assert 0.0 <= lo and hi <= 1.0 and hi > 0.5  # the object is in the crop

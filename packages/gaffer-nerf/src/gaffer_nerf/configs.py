@@ -600,6 +600,11 @@ class Stage2Config:
             (`DiffusionSamplingConfig.guidance_scale`, the paper's 3 for the released checkpoint).
         sds_weight: scale of the SDS gradient (1.0).
         encode_mode: VAE posterior "mode" (deterministic) or "sample" for the rendered view.
+        target_detail: "guidance" loss only: "model" (the paper: the render is pulled toward the
+            model's denoised view) or "transfer" (toward the render times the model's change of
+            shading, averaged over `transfer_radius_px`: the render's texture is not pulled toward
+            the model's blur; `gaffer_nerf.relight.detail.transfer_shading`).
+        transfer_radius_px: box half-width in the model's pixels ("transfer" only).
     """
 
     iterations: int = 500
@@ -618,10 +623,20 @@ class Stage2Config:
     sds_guidance_scale: float | None = None
     sds_weight: float = 1.0
     encode_mode: Literal["mode", "sample"] = "mode"
+    target_detail: TargetDetail = "model"
+    transfer_radius_px: int = 8
 
     def __post_init__(self) -> None:
         if self.iterations < 1:
             raise ConfigError(f"`iterations`={self.iterations} must be >= 1.")
+        if self.target_detail not in ("model", "transfer"):
+            raise ConfigError(
+                f"`target_detail`={self.target_detail!r} must be 'model' or 'transfer'."
+            )
+        if self.transfer_radius_px < 0:
+            raise ConfigError(
+                f"`transfer_radius_px`={self.transfer_radius_px} must be >= 0 (0: per pixel)."
+            )
         if self.loss not in ("guidance", "sds"):
             raise ConfigError(f"`loss` is {self.loss!r}; expected 'guidance' or 'sds'.")
         if self.t_schedule not in ("exponential", "authors"):

@@ -2,7 +2,9 @@
 
 Each step renders one random training view in full (from the frozen-density cache, with gradients),
 and either
-- "guidance": encodes it, noises it to t* (0.4 -> 0.05, exponential), DDIM-denoises with the model's
+- "guidance" (optionally toward the render times the model's change of shading,
+  `Stage2Config.target_detail="transfer"`, rather than the model's view itself):
+  encodes it, noises it to t* (0.4 -> 0.05, exponential), DDIM-denoises with the model's
   sampling (`DiffusionGuide.sampling`: steps, CFG, mirror average) and that view's conditioning, decodes, and applies w1 L1 + w2 perceptual between the render and the result; or
 - "sds": backpropagates the score-distillation gradient through the VAE encoder (the baseline).
 All learning rates are multiplied by `lr_gamma` (0.1^(1/200)) after every step, as the authors do.
@@ -21,12 +23,28 @@ from gaffer_nerf.fields.tensorf import TensoRFVM
 from gaffer_nerf.guidance.diffusion import DiffusionGuide, ViewConditions, t_star
 from gaffer_nerf.guidance.perceptual import PerceptualLoss
 from gaffer_nerf.relight._common import StageReport, appearance_optimizer
+from gaffer_nerf.relight.detail import transfer_shading
 from gaffer_nerf.rendering import SampleWeightCache, render_cached
 
 
 def image_tv(x: torch.Tensor) -> torch.Tensor:
     """Mean absolute difference of neighbouring pixels of `[B, 3, H, W]` (the authors' extra term)."""
     return (x[..., 1:, :] - x[..., :-1, :]).abs().mean() + (x[..., 1:] - x[..., :-1]).abs().mean()
+
+
+def _model_alpha(
+    cache: SampleWeightCache,
+    ids: torch.Tensor,
+    image_size: tuple[int, int],
+    guide: DiffusionGuide,
+    view: int,
+    conditions: ViewConditions,
+) -> torch.Tensor:
+    """The field's opacity along view `view`'s rays, cropped and resized as the model sees the view
+    (`[1, R, R]`; the crop's white padding is taken as background)."""
+    h, w = image_size
+    background = cache.background[ids].reshape(1, 1, h, w).expand(1, 3, h, w)
+    return 1.0 - guide.model_views(background.float(), [view], conditions.framing)[:, 0]
 
 
 def run_stage2(
@@ -92,6 +110,11 @@ def run_stage2(
                     encode_mode=config.encode_mode,
                     mirrored=mirrored,
                 ).to(x)
+                if config.target_detail == "transfer":  # the render's texture, the model's light
+                    alpha = _model_alpha(cache, ids, (h, w), guide, v, conditions)
+                    target = transfer_shading(
+                        x.detach(), target, alpha, config.transfer_radius_px
+                    ).to(x)
                 loss = config.l1_weight * F.l1_loss(x, target)
                 if config.perceptual_weight > 0 and perceptual.available:
                     loss = loss + config.perceptual_weight * perceptual(x, target)
