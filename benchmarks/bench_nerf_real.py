@@ -178,6 +178,20 @@ VALIDATION = Split(
 )
 
 
+VALIDATION_B = Split(
+    "validation-b",
+    43,
+    43,
+    (),
+    "none (input lighting only: a second validation split for grid sizing)",
+    "GAFFER_BENCH_NERF_VAL_B_DATA",
+    "nerf_real_val_b_data",
+)
+"""Three more unseen objects (`--seed 43`) under the input lighting only: `bench_nerf_sizing.py
+--real validation-b`, more objects to choose a sizing rule on (issue 20 item 4)."""
+SPLITS = {s.name: s for s in (TEST, VALIDATION, VALIDATION_B)}
+
+
 def data_root() -> Path:
     return TEST.data_root()
 

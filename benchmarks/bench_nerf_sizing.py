@@ -37,7 +37,11 @@ from typing import Any
 import _common as common
 
 NAME = "nerf_sizing"
-REAL_NAMES = {"test": "nerf_sizing_real", "validation": "nerf_sizing_real_val"}
+REAL_NAMES = {
+    "test": "nerf_sizing_real",
+    "validation": "nerf_sizing_real_val",
+    "validation-b": "nerf_sizing_real_val_b",
+}
 EARLY_STOP_VIEWS = (3, 10, 17)
 SIDES = (8, 12, 16, 20, 24, 32, 48)
 SIDES_QUICK = (12, 16, 24)
@@ -102,7 +106,7 @@ def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
     from gaffer_nerf.evaluate import evaluate_field
     from gaffer_nerf.sizing import budget_side
 
-    split = real.TEST if split_name == "test" else real.VALIDATION
+    split = real.SPLITS[split_name]
     root = real.renders(real.NUM_OBJECTS, split)
     folders = sorted(
         p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
@@ -431,7 +435,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         i = argv.index("--real")
         split = argv[i + 1] if i + 1 < len(argv) else ""
         if split not in REAL_NAMES:
-            print("--real takes 'test' or 'validation'", file=sys.stderr)
+            print("--real takes 'test', 'validation' or 'validation-b'", file=sys.stderr)
             return 2
         del argv[i : i + 2]
     args = common.parse_args(__doc__.split("\n")[0], argv)
