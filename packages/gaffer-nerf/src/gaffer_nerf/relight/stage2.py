@@ -44,7 +44,10 @@ def _model_alpha(
     (`[1, R, R]`; the crop's white padding is taken as background)."""
     h, w = image_size
     background = cache.background[ids].reshape(1, 1, h, w).expand(1, 3, h, w)
-    return 1.0 - guide.model_views(background.float(), [view], conditions.framing)[:, 0]
+    # clamped: the antialiased resize can overshoot [0, 1] by a rounding step
+    return (1.0 - guide.model_views(background.float(), [view], conditions.framing)[:, 0]).clamp(
+        0.0, 1.0
+    )
 
 
 def run_stage2(
