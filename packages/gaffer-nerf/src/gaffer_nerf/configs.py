@@ -741,16 +741,6 @@ def fit_preset(name: PresetName) -> FitConfig:
                 alpha_mask_at=(100, 200),
                 lr_grid=0.05,
                 lr_network=3e-3,
-                # No L1 on the density factors: TensoRF's weights (8e-5 / 4e-5) act on the mean of
-                # each factor, so on this preset's small factors (a 20x20 plane of rank 4 against
-                # the paper's 300x300 of rank 16) they weigh about 900 times more per plane element,
-                # and held a small object's density at zero for the whole fit (issue 20: 74 object
-                # pixels per 64 px view, 8.84 dB at 20^3, background only; without L1 20.79 dB).
-                # Chosen on the validation splits by a rule fixed before the run (higher mean
-                # object PSNR at the sizing rule's grid over their 6 objects: 21.15 against 19.05
-                # dB; bench_nerf_sizing.py --real validation / validation-b).
-                l1_weight_initial=0.0,
-                l1_weight_rest=0.0,
                 sizing=GridSizingConfig(max_resolution=48, min_resolution=8),
             )
         case _:
