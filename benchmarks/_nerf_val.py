@@ -100,7 +100,7 @@ def prepare(quick: bool, seed: int, only: Sequence[str] | None = None) -> Sweep:
     from gaffer_diffusion import RelightPipeline, RuntimeConfig
     from gaffer_diffusion.errors import MetricUnavailableError
     from gaffer_diffusion.metrics import load_perceptual
-    from gaffer_nerf import fit_preset, load_perceptual_loss, relight_preset
+    from gaffer_nerf import load_perceptual_loss
     from gaffer_nerf.guidance.model import load_relighting_model
 
     split = real.VALIDATION
@@ -113,26 +113,7 @@ def prepare(quick: bool, seed: int, only: Sequence[str] | None = None) -> Sweep:
         folders = [f for f in folders if f.name in only]
         if len(folders) != len(only):
             raise RuntimeError(f"--objects {list(only)}: not all among the rendered objects")
-    base = fit_preset("tiny")
-    fit_cfg = dataclasses.replace(
-        base,
-        iterations=real.QUICK["fit"] if quick else real.FIT_ITERATIONS,
-        seed=seed,
-        sizing=dataclasses.replace(base.sizing, mode="footprint"),
-    )
-    s1_iters = real.QUICK["stage1"] if quick else real.STAGE1_ITERATIONS
-    s2_iters = real.QUICK["stage2"] if quick else real.STAGE2_ITERATIONS
-    rcfg = relight_preset("tiny")
-    if rcfg.stage1 is None or rcfg.stage2 is None:
-        raise RuntimeError("relight_preset('tiny') lost a stage")
-    rcfg = dataclasses.replace(
-        rcfg,
-        seed=seed,
-        stage1=dataclasses.replace(rcfg.stage1, iterations=s1_iters),
-        stage2=dataclasses.replace(
-            rcfg.stage2, iterations=s2_iters, lr_gamma=0.1 ** (1.0 / max(s2_iters, 1))
-        ),
-    )
+    fit_cfg, rcfg = real.configs(quick, seed)
     loaded = load_relighting_model(None)  # what `gaffer-nerf relight` does without --checkpoint
     try:
         metric: Any = load_perceptual()

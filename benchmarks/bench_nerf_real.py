@@ -368,27 +368,50 @@ def _to_u8(img: torch.Tensor) -> np.ndarray:
 # ---------------------------------------------------------------------------------------- run
 
 
+def configs(quick: bool, seed: int) -> tuple[Any, Any]:
+    """The fit and relight configs every real-render benchmark runs: the tiny presets with the
+    sizing rule, this benchmark's iteration counts (`QUICK` ones with `quick`) and `seed`."""
+    from gaffer_nerf import fit_preset, relight_preset
+
+    base = fit_preset("tiny")
+    fit_cfg = dataclasses.replace(
+        base,
+        iterations=QUICK["fit"] if quick else FIT_ITERATIONS,
+        seed=seed,
+        sizing=dataclasses.replace(base.sizing, mode="footprint"),
+    )
+    s1_iters = QUICK["stage1"] if quick else STAGE1_ITERATIONS
+    s2_iters = QUICK["stage2"] if quick else STAGE2_ITERATIONS
+    rcfg = relight_preset("tiny")
+    if rcfg.stage1 is None or rcfg.stage2 is None:
+        raise RuntimeError("relight_preset('tiny') lost a stage")
+    rcfg = dataclasses.replace(
+        rcfg,
+        seed=seed,
+        stage1=dataclasses.replace(rcfg.stage1, iterations=s1_iters),
+        stage2=dataclasses.replace(
+            rcfg.stage2, iterations=s2_iters, lr_gamma=0.1 ** (1.0 / max(s2_iters, 1))
+        ),
+    )
+    return fit_cfg, rcfg
+
+
 def run(quick: bool, seed: int) -> dict[str, Any]:
     from gaffer_diffusion import RelightPipeline, RuntimeConfig
     from gaffer_diffusion.errors import MetricUnavailableError
     from gaffer_diffusion.metrics import load_perceptual
     from gaffer_nerf import (
         evaluate_field,
-        fit_preset,
         fit_tensorf,
         load_perceptual_loss,
         read_gaffer_data_object,
         relight_field,
-        relight_preset,
     )
     from gaffer_nerf.data import load_lighting_envmap
     from gaffer_nerf.guidance import DiffusionGuide
     from gaffer_nerf.guidance.model import load_relighting_model
     from gaffer_nerf.sizing import budget_side
 
-    fit_iters = QUICK["fit"] if quick else FIT_ITERATIONS
-    s1_iters = QUICK["stage1"] if quick else STAGE1_ITERATIONS
-    s2_iters = QUICK["stage2"] if quick else STAGE2_ITERATIONS
     n_objects = QUICK["objects"] if quick else NUM_OBJECTS
     targets = TARGET_HDRIS[: QUICK["targets"]] if quick else TARGET_HDRIS
 
@@ -400,23 +423,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
         p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
     )[:n_objects]
 
-    base = fit_preset("tiny")
-    fit_cfg = dataclasses.replace(
-        base,
-        iterations=fit_iters,
-        seed=seed,
-        sizing=dataclasses.replace(base.sizing, mode="footprint"),
-    )
-    rcfg = relight_preset("tiny")
-    assert rcfg.stage1 is not None and rcfg.stage2 is not None
-    rcfg = dataclasses.replace(
-        rcfg,
-        seed=seed,
-        stage1=dataclasses.replace(rcfg.stage1, iterations=s1_iters),
-        stage2=dataclasses.replace(
-            rcfg.stage2, iterations=s2_iters, lr_gamma=0.1 ** (1.0 / max(s2_iters, 1))
-        ),
-    )
+    fit_cfg, rcfg = configs(quick, seed)
 
     t0 = time.perf_counter()
     loaded = load_relighting_model(None)  # what `gaffer-nerf relight` does without --checkpoint
@@ -597,12 +604,12 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
                 "source": loaded.suggested.source,
             },
             "fit": (
-                f"fit_preset('tiny'), {fit_iters} iterations of {fit_cfg.batch_rays} rays, "
+                f"fit_preset('tiny'), {fit_cfg.iterations} iterations of {fit_cfg.batch_rays} rays, "
                 "sizing rule: GridSizingConfig(mode='footprint') (footprint + iteration budget)"
             ),
-            "stage1_iterations": s1_iters,
+            "stage1_iterations": rcfg.stage1.iterations,
             "stage1_batch_rays": rcfg.stage1.batch_rays,
-            "stage2_iterations": s2_iters,
+            "stage2_iterations": rcfg.stage2.iterations,
             "stage2_lr_gamma": round(rcfg.stage2.lr_gamma, 5),
             "stage2_t_schedule": rcfg.stage2.t_schedule,
             "stage2_settings": {

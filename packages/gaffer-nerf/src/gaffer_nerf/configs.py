@@ -530,6 +530,14 @@ class DiffusionSamplingConfig:
         return None if f is None or f == "whole" else float(f)
 
 
+def _check_target_detail(target_detail: str, transfer_radius_px: int) -> None:
+    """The Stage-1 / Stage-2 targets' detail setting (`TargetDetail` and its box radius)."""
+    if target_detail not in ("model", "transfer"):
+        raise ConfigError(f"`target_detail`={target_detail!r} must be 'model' or 'transfer'.")
+    if transfer_radius_px < 0:
+        raise ConfigError(f"`transfer_radius_px`={transfer_radius_px} must be >= 0 (0: per pixel).")
+
+
 @dataclass(frozen=True, kw_only=True)
 class Stage1Config:
     """Stage 1: fit the appearance to the diffusion-relit training views with L2 (paper Eq. 2).
@@ -564,14 +572,7 @@ class Stage1Config:
             raise ConfigError(
                 f"`iterations`={self.iterations} and `batch_rays`={self.batch_rays} must be >= 1."
             )
-        if self.target_detail not in ("model", "transfer"):
-            raise ConfigError(
-                f"`target_detail`={self.target_detail!r} must be 'model' or 'transfer'."
-            )
-        if self.transfer_radius_px < 0:
-            raise ConfigError(
-                f"`transfer_radius_px`={self.transfer_radius_px} must be >= 0 (0: per pixel)."
-            )
+        _check_target_detail(self.target_detail, self.transfer_radius_px)
         for name in ("lr_grid", "lr_network", "lr_decay_ratio"):
             _positive(name, getattr(self, name))
 
@@ -629,14 +630,7 @@ class Stage2Config:
     def __post_init__(self) -> None:
         if self.iterations < 1:
             raise ConfigError(f"`iterations`={self.iterations} must be >= 1.")
-        if self.target_detail not in ("model", "transfer"):
-            raise ConfigError(
-                f"`target_detail`={self.target_detail!r} must be 'model' or 'transfer'."
-            )
-        if self.transfer_radius_px < 0:
-            raise ConfigError(
-                f"`transfer_radius_px`={self.transfer_radius_px} must be >= 0 (0: per pixel)."
-            )
+        _check_target_detail(self.target_detail, self.transfer_radius_px)
         if self.loss not in ("guidance", "sds"):
             raise ConfigError(f"`loss` is {self.loss!r}; expected 'guidance' or 'sds'.")
         if self.t_schedule not in ("exponential", "authors"):
