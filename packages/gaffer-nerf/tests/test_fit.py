@@ -28,10 +28,31 @@ def test_fit_reaches_a_useful_psnr_and_shrinks_the_box(fitted, scene) -> None:
     psnr = heldout_psnr(fitted.field, scene.test_input.cameras.rays(), scene.test_input.rgb_flat())
     assert psnr > 22.0, psnr  # ~26 dB in ~4 s on one core; a blank white image scores ~9 dB
     assert rep.iterations_run == 120 and not rep.stopped_early
-    # the alpha mask shrank the box towards the sphere (radius 0.5) before upsampling
-    assert float(fitted.field.aabb_size.max()) < 1.9
+    # the box never grows, and the first alpha mask's shrink kept the sphere (radius 0.5) inside it
+    box = fitted.field.aabb
+    assert float(box.min()) >= -1.0 and float(box.max()) <= 1.0
+    assert bool((box[0] <= -0.45).all()) and bool((box[1] >= 0.45).all()), box
     assert len(rep.grid_history) == 4 and rep.final_grid == fitted.field.grid_size
     assert rep.grid_bytes == fitted.field.grid_memory_bytes() > 0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_alpha_mask_shrinks_the_box_to_the_object(scene, seed: int) -> None:
+    # How far the box shrinks at TensoRF's threshold (alpha 1e-4) depends on which faint floaters 40
+    # steps leave: measured over seeds 0-3, the box side stays 2.0 on seed 1 at every density L1 tried
+    # (0 to 8e-5). With a threshold that ignores faint floaters (3e-3), what is left is the shrink
+    # itself: on seeds 0-3 the box closes to +-0.6, the sphere (radius 0.5) plus the mask's one-voxel
+    # margin. (At 1e-2 it cuts into the sphere's still-faint edge on three of the four seeds.)
+    base = quick_fit_config(seed=seed)
+    cfg = dataclasses.replace(
+        base, tensorf=dataclasses.replace(base.tensorf, alpha_mask_threshold=3e-3)
+    )
+    res = fit_tensorf(scene.train, cfg)
+    box = res.field.aabb
+    assert float((box[1] - box[0]).max()) < 1.5, box
+    assert bool((box[0] <= -0.5).all()) and bool((box[1] >= 0.5).all()), box
+    psnr = heldout_psnr(res.field, scene.test_input.cameras.rays(), scene.test_input.rgb_flat())
+    assert psnr > 22.0, psnr
 
 
 def test_footprint_sizing_and_cap() -> None:
@@ -87,20 +108,25 @@ def test_early_stopping_stops_on_a_plateau(scene) -> None:
         fit_tensorf(scene.train, quick_fit_config(early_stopping=es))
 
 
-def test_rank_selection_keeps_the_small_ranks_on_a_plain_sphere() -> None:
-    # An unpainted sphere under smooth light: 4/8 ranks already fit it (~27 dB held out), so doubling
-    # them (8/16) must not be worth it; the ladder stops after two fits, without trying x4.
+def test_rank_selection_fits_the_ladder_and_keeps_the_rung_it_chose() -> None:
+    # Whether doubling the ranks pays on this sphere at 120 steps is seed luck: measured against 4/8
+    # (~27 dB), the 8/16 rung scored +2.5 dB on seed 0 and +0.1 on seed 1 with the tiny preset's
+    # density L1, and -0.8 / +1.0 dB with TensoRF's (8e-5 / 4e-5). So this test fixes the
+    # choice with a tolerance no rung can beat (50 dB) and checks the ladder around it: the rungs'
+    # ranks and sizes, that it stops after two fits without trying x4, and that the field returned is
+    # the chosen rung's. `choose_rank_rung` itself is tested on given PSNRs below.
     env = scene_envmap(0)
     train = sphere_viewset(orbit_cameras(8), env, plain=True)
     heldout = sphere_viewset(orbit_cameras(3, offset_deg=67.0), env, plain=True)
-    sel = RankSelectionConfig(ladder=(1.0, 2.0, 4.0), tolerance_db=0.5, max_rays=4000)
+    sel = RankSelectionConfig(ladder=(1.0, 2.0, 4.0), tolerance_db=50.0, max_rays=4000)
     res = fit_tensorf(train, quick_fit_config(rank_selection=sel), heldout=heldout)
     rs = res.report.rank_selection
     assert rs is not None and rs.chosen == 0 and len(rs.rungs) == 2, rs
+    assert rs.chosen == choose_rank_rung([r.heldout_psnr for r in rs.rungs], sel.tolerance_db)
     small, large = rs.rungs
     assert (small.density_ranks, small.appearance_ranks) == ((4, 4, 4), (8, 8, 8))
     assert (large.density_ranks, large.appearance_ranks) == ((8, 8, 8), (16, 16, 16))
-    assert small.heldout_psnr > 24.0 and small.heldout_psnr >= large.heldout_psnr - 0.5
+    assert small.heldout_psnr > 24.0 and large.heldout_psnr > 24.0
     assert 0 < small.parameters < large.parameters and 0 < small.memory_mib < large.memory_mib
     assert all(r.seconds > 0 and r.iterations_run == 120 for r in rs.rungs)
     assert res.field.config.density_ranks == (4, 4, 4) and rs.chosen_rung is small
