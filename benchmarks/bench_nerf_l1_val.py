@@ -173,7 +173,7 @@ def plot(payload: dict[str, Any]) -> Any:
 
 def markdown(payload: dict[str, Any]) -> str:
     lines = [
-        "| L1 (initial / after mask) | object PSNR | worst object | full frame | s per fit | "
+        "| L1 (initial / after mask) | object PSNR | worst fit | full frame | s per fit | "
         "sphere box side, seeds 0-3 |",
         "|---|---|---|---|---|---|",
     ]
