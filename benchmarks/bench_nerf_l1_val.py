@@ -116,7 +116,11 @@ def _sphere_boxes(quick: bool) -> list[dict[str, Any]]:
             cfg = quick_fit_config(seed=seed, l1_weight_initial=l1, l1_weight_rest=l1 / 2)
             res = fit_tensorf(train, cfg)
             rows.append(
-                {"l1_initial": l1, "seed": seed, "box_side": round(float(res.field.aabb_size.max()), 3)}
+                {
+                    "l1_initial": l1,
+                    "seed": seed,
+                    "box_side": round(float(res.field.aabb_size.max()), 3),
+                }
             )
     return rows
 
