@@ -61,25 +61,14 @@ def _config(l1: float, seed: int) -> Any:
 
 
 def _object_fits(quick: bool) -> list[dict[str, Any]]:
-    from gaffer_nerf import fit_tensorf, read_gaffer_data_object
+    from gaffer_nerf import fit_tensorf
     from gaffer_nerf.evaluate import evaluate_field
 
     rows = []
     splits = (real.VALIDATION,) if quick else (real.VALIDATION, real.VALIDATION_B)
     for split in splits:
-        root = real.renders(real.NUM_OBJECTS, split)
-        folders = sorted(
-            p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
-        )[: 1 if quick else real.NUM_OBJECTS]
-        for folder in folders:
-            probe = read_gaffer_data_object(folder)
-            idx = real.lighting_indices(probe)
-            scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
-            assert scene.test is not None
-            n = scene.train.num_views
-            stop_views = list(sizing.EARLY_STOP_VIEWS)
-            fitted = scene.train.select([i for i in range(n) if i not in stop_views])
-            heldout = scene.train.select(stop_views)
+        for folder in sizing.real_object_folders(split, quick):
+            scene, fitted, heldout = sizing.input_lighting_views(folder)
             for l1 in CANDIDATES:
                 for seed in FIT_SEEDS[:1] if quick else FIT_SEEDS:
                     res = fit_tensorf(fitted, _config(l1, seed), heldout=heldout)

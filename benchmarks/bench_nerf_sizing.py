@@ -32,6 +32,7 @@ import dataclasses
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import _common as common
@@ -99,18 +100,41 @@ def _fits(quick: bool, seed: int) -> list[dict[str, Any]]:
     return rows
 
 
+def real_object_folders(split: Any, quick: bool) -> list[Path]:
+    """The split's rendered objects (rendering them once if needed); one when `quick`."""
+    import bench_nerf_real as real
+
+    root = real.renders(real.NUM_OBJECTS, split)
+    return sorted(
+        p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
+    )[: 1 if quick else real.NUM_OBJECTS]
+
+
+def input_lighting_views(folder: Path) -> tuple[Any, Any, Any]:
+    """An object under the input lighting: the scene (its test views scored), the train views fitted,
+    and the train views `EARLY_STOP_VIEWS` held out for early stopping."""
+    import bench_nerf_real as real
+
+    from gaffer_nerf import read_gaffer_data_object
+
+    probe = read_gaffer_data_object(folder)
+    idx = real.lighting_indices(probe)
+    scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
+    assert scene.test is not None
+    n = scene.train.num_views
+    fitted = scene.train.select([i for i in range(n) if i not in EARLY_STOP_VIEWS])
+    heldout = scene.train.select(list(EARLY_STOP_VIEWS))
+    return scene, fitted, heldout
+
+
 def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
     import bench_nerf_real as real
 
-    from gaffer_nerf import EarlyStoppingConfig, fit_preset, fit_tensorf, read_gaffer_data_object
+    from gaffer_nerf import EarlyStoppingConfig, fit_preset, fit_tensorf
     from gaffer_nerf.evaluate import evaluate_field
     from gaffer_nerf.sizing import budget_side
 
-    split = real.SPLITS[split_name]
-    root = real.renders(real.NUM_OBJECTS, split)
-    folders = sorted(
-        p for p in (root / "objects").iterdir() if (p / "transforms_test.json").is_file()
-    )[: 1 if quick else real.NUM_OBJECTS]
+    folders = real_object_folders(real.SPLITS[split_name], quick)
     stop = EarlyStoppingConfig(eval_every=50, patience=2, min_iterations=150)
     base = dataclasses.replace(fit_preset("tiny"), seed=seed, early_stopping=stop)
     variants: list[tuple[str, str, Any]] = []
@@ -124,13 +148,7 @@ def _real_fits(quick: bool, seed: int, split_name: str) -> list[dict[str, Any]]:
     rows = []
     warm = True
     for folder in folders:
-        probe = read_gaffer_data_object(folder)
-        idx = real.lighting_indices(probe)
-        scene = read_gaffer_data_object(folder, lighting_index=idx[real.INPUT_HDRI])
-        assert scene.test is not None
-        n = scene.train.num_views
-        fitted = scene.train.select([i for i in range(n) if i not in EARLY_STOP_VIEWS])
-        heldout = scene.train.select(list(EARLY_STOP_VIEWS))
+        scene, fitted, heldout = input_lighting_views(folder)
         if warm:  # a short untimed fit first, so that the first timed fit pays no start-up cost
             fit_tensorf(fitted, dataclasses.replace(base, iterations=60, early_stopping=None))
             warm = False
