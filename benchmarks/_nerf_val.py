@@ -171,6 +171,11 @@ def log_pair(row: dict[str, Any]) -> None:
     )
 
 
+def higher_psnr(row: dict[str, Any], ref: dict[str, Any]) -> bool:
+    """The `wins` of `means` most sweeps count: a higher object PSNR (raw) than the reference's."""
+    return row["psnr_object_db"] > ref["psnr_object_db"]
+
+
 def means(
     pairs: Sequence[dict[str, Any]],
     reference: str,

@@ -70,7 +70,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         result["pairs"],
         "per-view noise",
         "psnr_wins_vs_per_view",
-        lambda row, ref: row["psnr_object_db"] > ref["psnr_object_db"],
+        val.higher_psnr,
     )
     a, b = out["per-view noise"], out["shared noise"]
     lp_ok = a["stlpips_crop"] is None or (

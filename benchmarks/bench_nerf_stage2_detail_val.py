@@ -88,7 +88,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         result["pairs"],
         "model",
         "psnr_wins_vs_model",
-        lambda row, ref: row["psnr_object_db"] > ref["psnr_object_db"],
+        val.higher_psnr,
     )
     base = out["model"]
     ok = [

@@ -133,7 +133,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         result["pairs"],
         "stage 1 only",
         "wins_vs_stage1_psnr",
-        lambda row, ref: row["psnr_object_db"] > ref["psnr_object_db"],
+        val.higher_psnr,
     )
     settings = [n for n in out if n in SETTINGS]
     s1_lp = out["stage 1 only"]["stlpips_crop"]
