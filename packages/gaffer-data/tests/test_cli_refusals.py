@@ -48,6 +48,20 @@ def test_recipe_refuses_an_absurd_procedural_count(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize(
+    ("flags", "words"),
+    [
+        (["--pybullet", "1001"], "`--pybullet` is 1001"),
+        (["--pybullet", "10", "--pybullet-first", "995"], "`--pybullet-first` is 995"),
+    ],
+)
+def test_recipe_refuses_pybullet_ranges_past_the_shipped_meshes(tmp_path, capsys, flags, words):
+    assert main(["recipe", str(tmp_path / "r"), "--procedural", "0", *flags]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1
+    assert not (tmp_path / "r").exists()
+
+
 def test_info_refuses_a_folder_that_is_no_dataset(tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("not a dataset")
     assert main(["info", str(tmp_path)]) == 2

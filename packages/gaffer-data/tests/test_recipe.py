@@ -73,3 +73,25 @@ def test_a_failed_procedural_build_leaves_no_partial_objects(tmp_path, monkeypat
         recipes.build_default_recipe(tmp_path, procedural=5, sample_meshes_too=False)
     assert not (tmp_path / "objects" / "procedural").exists()
     assert list((tmp_path / "objects").rglob("*.glb")) == []
+
+
+@pytest.mark.blender
+def test_recipe_adds_pybullet_meshes_with_materials_in_disjoint_ranges(tmp_path: Path) -> None:
+    if importlib.util.find_spec("bpy") is None or importlib.util.find_spec("pybullet_data") is None:
+        pytest.skip("bpy and pybullet are needed (gaffer-data[render,pybullet])")
+    recipe = build_default_recipe(
+        tmp_path, procedural=0, sample_meshes_too=False, pybullet=2, pybullet_first=500, seed=3
+    )
+    ids = [oid for oid, _ in scan_objects(recipe.objects)]
+    assert ids == ["pybullet__pybullet_500", "pybullet__pybullet_501"]
+    glb = (recipe.objects / "pybullet" / "pybullet_500.glb").read_bytes()
+    assert glb[:4] == b"glTF" and b"mat_pb_500" in glb  # the random material was exported
+    again = build_default_recipe(
+        tmp_path / "again",
+        procedural=0,
+        sample_meshes_too=False,
+        pybullet=1,
+        pybullet_first=500,
+        seed=3,
+    )
+    assert (again.objects / "pybullet" / "pybullet_500.glb").read_bytes() == glb

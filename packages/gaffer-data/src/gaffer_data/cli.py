@@ -57,6 +57,9 @@ MAX_SAMPLES = 1 << 16
 MAX_PROCEDURAL = 10_000
 """Largest `recipe --procedural`: about 40 s of Blender per 100 objects, so a few hours at most."""
 
+PYBULLET_RANDOM_MESHES = 1000
+"""pybullet_data ships random_urdfs 000-999 (`recipe --pybullet`)."""
+
 
 def _check_render_args(args: argparse.Namespace) -> None:
     """Cheap checks before any scan or Blender start (issue 17): one line naming the flag and the fix."""
@@ -164,9 +167,24 @@ def _recipe(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"`--procedural` is {args.procedural}; expected a count in 0..{MAX_PROCEDURAL}."
         )
+    if not 0 <= args.pybullet <= PYBULLET_RANDOM_MESHES:
+        raise ConfigError(
+            f"`--pybullet` is {args.pybullet}; expected a count in 0..{PYBULLET_RANDOM_MESHES}."
+        )
+    if not 0 <= args.pybullet_first <= PYBULLET_RANDOM_MESHES - args.pybullet:
+        raise ConfigError(
+            f"`--pybullet-first` is {args.pybullet_first}; expected 0..{PYBULLET_RANDOM_MESHES} minus"
+            " `--pybullet` (pybullet_data ships random_urdfs 000-999)."
+        )
     if not args.out.strip():  # Path("") would be the current folder
         raise ConfigError("`out` is empty; pass the folder to write the recipe into.")
-    recipe = build_default_recipe(Path(args.out), procedural=args.procedural, seed=args.seed)
+    recipe = build_default_recipe(
+        Path(args.out),
+        procedural=args.procedural,
+        seed=args.seed,
+        pybullet=args.pybullet,
+        pybullet_first=args.pybullet_first,
+    )
     print(f"objects: {recipe.objects}\nenvmaps: {recipe.envmaps}")
     return 0
 
@@ -406,6 +424,18 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("out", help="folder the recipe's objects/ and envmaps/ go into")
     c.add_argument("--procedural", type=int, default=8, help="procedural objects to add (>= 0)")
     c.add_argument("--seed", type=int, default=0, help="seed of the procedural objects")
+    c.add_argument(
+        "--pybullet",
+        type=int,
+        default=0,
+        help="pybullet_data random_urdfs meshes to add with random materials (needs pybullet)",
+    )
+    c.add_argument(
+        "--pybullet-first",
+        type=int,
+        default=0,
+        help="first random_urdfs index (disjoint ranges give disjoint splits)",
+    )
     c.set_defaults(func=_recipe)
 
     f = sub.add_parser("filter", help="compute features, apply rules and a classifier")

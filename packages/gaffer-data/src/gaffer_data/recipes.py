@@ -129,7 +129,13 @@ class Recipe:
 
 
 def build_default_recipe(
-    out: str | Path, *, procedural: int = 8, seed: int = 0, sample_meshes_too: bool = True
+    out: str | Path,
+    *,
+    procedural: int = 8,
+    seed: int = 0,
+    sample_meshes_too: bool = True,
+    pybullet: int = 0,
+    pybullet_first: int = 0,
 ) -> Recipe:
     """Write the embedded default recipe into `out/objects` and `out/envmaps`.
 
@@ -138,6 +144,8 @@ def build_default_recipe(
         procedural: number of procedural objects (needs bpy, run in a subprocess).
         seed: seed of the procedural shapes and materials.
         sample_meshes_too: also copy pymeshlab's sample meshes (skipped when pymeshlab is absent).
+        pybullet: number of pybullet_data `random_urdfs` meshes (indices `pybullet_first`...) to add
+            with random procedural materials, into `out/objects/pybullet` (needs bpy and pybullet).
 
     Returns:
         The recipe's folders.
@@ -174,4 +182,16 @@ def build_default_recipe(
             result = subprocess.run(cmd, capture_output=True, text=True, check=False)
             if result.returncode != 0:
                 raise InputError(f"building procedural objects failed:\n{result.stderr[-2000:]}")
+    if pybullet > 0:
+        if importlib.util.find_spec("bpy") is None:
+            raise missing_extra("bpy", "render")
+        if importlib.util.find_spec("pybullet_data") is None:
+            raise InputError("`--pybullet` needs pybullet's meshes: `pip install pybullet`.")
+        with atomic_files(objects / "pybullet") as stage:
+            cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(stage)]
+            cmd += ["--count", str(pybullet), "--seed", str(seed)]
+            cmd += ["--pybullet-first", str(pybullet_first)]
+            result = subprocess.run(cmd, capture_output=True, text=True, check=False)
+            if result.returncode != 0:
+                raise InputError(f"building pybullet objects failed:\n{result.stderr[-2000:]}")
     return Recipe(objects=objects, envmaps=envmaps)

@@ -48,6 +48,8 @@ CompatMode = Compat
 """gaffer-envmap's lighting encoding (`gaffer_envmap.Compat`, defined there once)."""
 
 if TYPE_CHECKING:
+    from gaffer_diffusion.hints import HintGeometry
+
     _Images = Float[Tensor, "B 3 H W"]
     _Masks = Float[Tensor, "B 1 H W"]
 else:  # `LightingMaps` / `RelightingConditions.__post_init__` check these shapes themselves (a
@@ -100,6 +102,10 @@ class RelightingConditions:
             for the model's output y. Relighting a fixed view does not move the silhouette, so
             whatever the model paints on the background is error (gaffer-tiny: +0.15 dB PSNR on
             held-out renders). None: the model's full frame, as the authors score it.
+        normals: optional `[B, 3, H, W]` camera-frame unit normals of the input (x right, y up, z
+            toward the camera) for the radiance hints of a model with `hint_geometry` "estimated",
+            in place of the estimator's: the true normals of a render give the oracle ceiling of the
+            re-shading benchmark. None: the model's own geometry.
 
     Raises:
         ShapeError: when shapes disagree.
@@ -116,9 +122,17 @@ class RelightingConditions:
     image: _Images
     lighting: LightingMaps
     mask: _Masks | None = None
+    normals: _Images | None = None
 
     def __post_init__(self) -> None:
         check_image_batch("image", self.image)
+        if self.normals is not None and tuple(self.normals.shape) != tuple(self.image.shape):
+            raise ShapeError(
+                "normals",
+                tuple(self.normals.shape),
+                f"the shape of `image` {tuple(self.image.shape)}",
+                "Pass camera-frame normals at the model resolution.",
+            )
         object.__setattr__(self, "image", check_unit_range("image", self.image))
         if self.mask is not None:
             check_image_batch("mask", self.mask, channels=1)
@@ -303,9 +317,9 @@ def encode_conditions(
     clip_embeds = model.image_encoder(pixel_values=pixels).image_embeds.unsqueeze(1)  # [B, 1, D]
     hints = None
     if model.config.hints:
-        hints = hints_for(conditions, model.config.latent_size).to(
-            device=vae_param.device, dtype=image_latents.dtype
-        )
+        hints = hints_for(
+            conditions, model.config.latent_size, geometry=model.config.hint_geometry
+        ).to(device=vae_param.device, dtype=image_latents.dtype)
     return EncodedConditions(
         image_latents=image_latents,
         hdr_latents=hdr_latents,
@@ -320,16 +334,35 @@ def object_mask_of(image: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 1 H W"]:
     return (image.amin(dim=1, keepdim=True) < 254.5 / 255.0).float()
 
 
-def hints_for(conditions: RelightingConditions, size: int) -> Float[Tensor, "B 12 s s"]:
+def hints_for(
+    conditions: RelightingConditions, size: int, *, geometry: "HintGeometry" = "silhouette"
+) -> Float[Tensor, "B C s s"]:
     """Radiance hints (`gaffer_diffusion.hints.relighting_hints`) of `conditions` at `size` px.
 
     The mask is `conditions.mask` (the input's alpha), else the pixels of the input that are not
-    pure white; latent models get the hints area-downsampled to their latent size.
+    pure white; latent models get the hints area-downsampled to their latent size. `geometry`
+    "estimated" (`ModelConfig.hint_geometry`): normals from the learned estimator and the de-lit
+    ratio of the input (15 channels), else the silhouette dome (12).
     """
+    from gaffer_diffusion.geometry import input_normals
     from gaffer_diffusion.hints import hints_at
 
     mask = conditions.mask if conditions.mask is not None else object_mask_of(conditions.image)
-    return hints_at(mask.float(), conditions.lighting.ldr, conditions.lighting.hdr, size)
+    image = conditions.image.float()
+    normals = None
+    if geometry == "estimated":
+        normals = conditions.normals
+        if normals is None:
+            normals = input_normals(geometry, image, mask.float())
+    return hints_at(
+        mask.float(),
+        conditions.lighting.ldr,
+        conditions.lighting.hdr,
+        size,
+        geometry=geometry,
+        image=image,
+        normals=normals,
+    )
 
 
 def lighting_from_envmap(

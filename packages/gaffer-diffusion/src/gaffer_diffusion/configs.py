@@ -26,11 +26,13 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion import _choices
 from gaffer_diffusion.errors import ConfigError
-from gaffer_diffusion.hints import HINT_CHANNELS
+from gaffer_diffusion.hints import ESTIMATED_HINT_CHANNELS, HINT_CHANNELS, HintGeometry
 
 PresetName = _choices.PresetName
 
 VAEKind = Literal["autoencoder-kl", "pixel"]
+ResidualSpace = Literal["display", "log_linear"]
+"""How a residual model's target relates to its input (`ModelConfig.residual_space`)."""
 """What stands in the VAE's place: diffusers' `AutoencoderKL`, or the exact, parameter-free
 `gaffer_diffusion.models.pixel.PixelAutoencoder` (pixel-space diffusion, downsampling factor 1)."""
 
@@ -285,6 +287,14 @@ class ModelConfig:
             after DiLightNet): a white diffuse and two glossy renders of the input's silhouette
             normals under the target light, and the normals, computed from the input's mask and the
             lighting maps on every path; `unet.in_channels` is then 16 + 12.
+        residual_space: with `residual`, what is subtracted. "display" (gaffer-tiny <= 0.4): the
+            target's pixels minus the input's. "log_linear" (gaffer-tiny 0.5, pixel space only): the
+            log of the target's linear radiance over the input's, a change of shading applied to
+            the input in linear light, so the input's edges and texture are kept by construction
+            (issue 31: output = (input + eps) x exp(ratio) - eps).
+        hint_geometry: with `hints`, where their normals come from: "silhouette" (the dome, 12
+            channels) or "estimated" (the learned estimator, plus the de-lit ratio: 15 channels;
+            `gaffer_diffusion.hints`).
 
     Raises:
         ConfigError: when the parts are inconsistent.
@@ -303,8 +313,23 @@ class ModelConfig:
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
     residual: bool = False
     hints: bool = False
+    residual_space: ResidualSpace = "display"
+    hint_geometry: HintGeometry = "silhouette"
 
     def __post_init__(self) -> None:
+        if self.residual_space not in ("display", "log_linear"):
+            raise ConfigError(
+                f"`residual_space` is {self.residual_space!r}; expected 'display' or 'log_linear'."
+            )
+        if self.residual_space == "log_linear" and self.vae.kind != "pixel":
+            raise ConfigError(
+                "`residual_space` 'log_linear' needs a pixel-space model (`vae.kind` 'pixel'): a "
+                "latent has no linear radiance; use 'display'."
+            )
+        if self.hint_geometry not in ("silhouette", "estimated"):
+            raise ConfigError(
+                f"`hint_geometry` is {self.hint_geometry!r}; expected 'silhouette' or 'estimated'."
+            )
         factor = self.vae.downsampling_factor
         if self.resolution <= 0 or self.resolution % factor:
             raise ConfigError(
@@ -318,7 +343,7 @@ class ModelConfig:
             )
         expected_in = LATENT_CHANNELS * (1 + CONDITIONING_LATENTS) + self.hint_channels
         if self.unet.in_channels != expected_in:
-            hint_text = f" + {HINT_CHANNELS} hint channels" if self.hints else ""
+            hint_text = f" + {self.hint_channels} hint channels" if self.hints else ""
             raise ConfigError(
                 f"`unet.in_channels` is {self.unet.in_channels}, expected {expected_in} "
                 f"([z_t, E(image), E(HDR), E(LDR)], 4 channels each{hint_text})."
@@ -335,7 +360,9 @@ class ModelConfig:
     @property
     def hint_channels(self) -> int:
         """Radiance-hint channels after the conditioning latents (0 without `hints`)."""
-        return HINT_CHANNELS if self.hints else 0
+        if not self.hints:
+            return 0
+        return ESTIMATED_HINT_CHANNELS if self.hint_geometry == "estimated" else HINT_CHANNELS
 
     @property
     def latent_size(self) -> int:

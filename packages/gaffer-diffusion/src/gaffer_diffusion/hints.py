@@ -18,10 +18,19 @@ image, its mask and the camera-frame lighting maps E_L / E_H (paper §3.2):
 The model sees `[diffuse, glossy_rough, glossy_sharp, normals]` (12 channels, `HINT_CHANNELS`) beside
 `[z_t, E(x), E(E_H), E(E_L)]`; outside the mask every hint is 0. Mirroring the image and the maps in
 camera x mirrors the hints (tested), so the mirror mean and mirror augmentation stay exact.
+
+With `ModelConfig.hint_geometry == "estimated"` (gaffer-tiny 0.5, issue 31) the normals come from the
+learned estimator (`gaffer_diffusion.geometry.estimator`) instead of the dome, and three more channels
+follow (`ESTIMATED_HINT_CHANNELS`): the **de-lit ratio** `log(E_target(n) / pi) - log(L_input(n))`, where
+`L_input` is an order-2 spherical-harmonic fit of the input's own linear radiance over its normals
+(Ramamoorthi & Hanrahan 2001: nine coefficients hold diffuse lighting): the input's lighting x albedo.
+For a diffuse object the true change of shading is this ratio plus log(albedo), so the model is told
+which facets brighten and which darken under the target, relative to how the input was lit.
 """
 
 import math
 from functools import lru_cache
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -29,8 +38,11 @@ from jaxtyping import Float
 from torch import Tensor
 
 __all__ = [
+    "ESTIMATED_HINT_CHANNELS",
     "HINT_CHANNELS",
     "PHONG_EXPONENTS",
+    "HintGeometry",
+    "delit_ratio",
     "hints_at",
     "prefiltered_maps",
     "radiance_from_maps",
@@ -43,6 +55,15 @@ PHONG_EXPONENTS: tuple[int, ...] = (8, 64)
 
 HINT_CHANNELS = 3 * (1 + len(PHONG_EXPONENTS)) + 3
 """Diffuse (3) + one RGB hint per Phong lobe (3 each) + normals (3)."""
+
+ESTIMATED_HINT_CHANNELS = HINT_CHANNELS + 3
+"""The same with estimated normals, plus the de-lit ratio (3): `hint_geometry == "estimated"`."""
+
+HintGeometry = Literal["silhouette", "estimated"]
+"""Where the hints' normals come from: the silhouette dome (no weights) or the learned estimator."""
+
+_RATIO_EPS = 0.01  # linear radiance added before the logs of the de-lit ratio
+_RATIO_RANGE = 4.0  # the ratio's log is divided by this and clipped to [-1, 1]
 
 LOBE_GRID = 24
 """Side of the direction grid the camera-frame map is pooled to for the lobe integrals (576 dirs)."""
@@ -212,24 +233,84 @@ def _lookup(maps: Float[Tensor, "B C P P"], dirs: Float[Tensor, "B 3 H W"]) -> T
     return F.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
+def _srgb_to_linear(x: Tensor) -> Tensor:
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def _quadratic_basis(n: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 9 H W"]:
+    """A basis of the polynomials of degree <= 2 in the normal: the span of order-2 real SH (a
+    least-squares fit in it equals a fit in SH, whatever the constants)."""
+    x, y, z = n[:, 0], n[:, 1], n[:, 2]
+    one = torch.ones_like(x)
+    return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1], dim=1)
+
+
+def delit_ratio(
+    image: Float[Tensor, "B 3 H W"],
+    mask: Float[Tensor, "B 1 H W"],
+    normals: Float[Tensor, "B 3 H W"],
+    diffuse_target: Float[Tensor, "B 3 H W"],
+) -> Float[Tensor, "B 3 H W"]:
+    """`log(diffuse_target) - log(L_input(n))` / 4, clipped to [-1, 1], zero outside the mask.
+
+    `L_input` is the least-squares order-2 SH fit, per channel, of the input's linear radiance over
+    its unsaturated object pixels as a function of their normals (a small ridge keeps an object that
+    shows few normals well posed); it is floored at 5% of its mean so the log stays finite.
+
+    Args:
+        image: the input in display sRGB, [0, 1], on white.
+        mask: its alpha.
+        normals: camera-frame unit normals.
+        diffuse_target: irradiance / pi of the target light at each pixel (linear radiance of a white
+            Lambertian surface).
+    """
+    b = image.shape[0]
+    lin = _srgb_to_linear(image.float())  # [B, 3, H, W]
+    basis = _quadratic_basis(normals.float())  # [B, 9, H, W]
+    inside = mask > 0.5
+    weight = (inside & (image.amax(dim=1, keepdim=True) < 0.98)).float().flatten(1)  # [B, P]
+    a = basis.flatten(2)  # [B, 9, P]
+    ata = torch.einsum("bp,bip,bjp->bij", weight, a, a)  # [B, 9, 9]
+    ridge = 1e-3 * weight.sum(dim=1).clamp_min(1.0).view(b, 1, 1)
+    ata = ata + ridge * torch.eye(9, device=image.device).expand(b, 9, 9)
+    aty = torch.einsum("bp,bip,bcp->bci", weight, a, lin.flatten(2))  # [B, 3, 9]
+    coeffs = torch.linalg.solve(ata.unsqueeze(1), aty.unsqueeze(-1)).squeeze(-1)  # [B, 3, 9]
+    fit = torch.einsum("bci,bihw->bchw", coeffs, basis)
+    insidef = inside.float()
+    mean = (fit * insidef).sum(dim=(2, 3), keepdim=True) / insidef.sum(
+        dim=(2, 3), keepdim=True
+    ).clamp_min(1.0)
+    fit = torch.maximum(fit, 0.05 * mean.clamp_min(1e-4))
+    ratio = torch.log(diffuse_target.float() + _RATIO_EPS) - torch.log(fit + _RATIO_EPS)
+    return (ratio / _RATIO_RANGE).clamp(-1.0, 1.0) * insidef
+
+
 def relighting_hints(
     mask: Float[Tensor, "B 1 H W"],
     ldr: Float[Tensor, "B 3 S S"],
     hdr: Float[Tensor, "B 3 S S"],
-) -> Float[Tensor, "B 12 H W"]:
-    """The 12 hint channels of `ModelConfig.hints` in [-1, 1] (see the module docstring).
+    *,
+    normals: Float[Tensor, "B 3 H W"] | None = None,
+    image: Float[Tensor, "B 3 H W"] | None = None,
+) -> Float[Tensor, "B C H W"]:
+    """The hint channels of `ModelConfig.hints` in [-1, 1] (see the module docstring).
 
     Args:
         mask: the input's object mask (its alpha) in [0, 1] at the model resolution.
         ldr, hdr: the target lighting's camera-frame maps E_L, E_H (gaffer-envmap default encoding).
+        normals: camera-frame normals of the input (`input_normals`); None: the silhouette dome.
+        image: the input (display sRGB on white); when given, the 3 de-lit ratio channels follow
+            (`delit_ratio`, with `normals`).
 
     Returns:
-        `[B, 12, H, W]`: diffuse, Phong 8, Phong 64 (tone-mapped, mapped to [-1, 1]) and the normals,
-        all zero outside the mask.
+        `[B, 12, H, W]` (`[B, 15, H, W]` with `image`): diffuse, Phong 8, Phong 64 (tone-mapped,
+        mapped to [-1, 1]), the normals (and the de-lit ratio), all zero outside the mask.
     """
     device = mask.device
     maps = prefiltered_maps(radiance_from_maps(ldr, hdr).to(device))  # [B, 9, P, P]
-    normals = silhouette_normals(mask)  # [B, 3, H, W]
+    if normals is None:
+        normals = silhouette_normals(mask)  # [B, 3, H, W]
     # mirror direction of the view vector v = +z (orthographic camera): r = 2 (n.v) n - v
     refl = 2.0 * normals[:, 2:3] * normals - torch.tensor([0.0, 0.0, 1.0], device=device).view(
         1, 3, 1, 1
@@ -238,7 +319,10 @@ def relighting_hints(
     glossy = _lookup(maps[:, 3:], refl)
     inside = (mask > 0.5).float()
     encoded = (_tone(torch.cat([diffuse, glossy], dim=1)) * 2.0 - 1.0) * inside
-    return torch.cat([encoded, normals * inside], dim=1)
+    parts = [encoded, normals * inside]
+    if image is not None:
+        parts.append(delit_ratio(image, mask, normals, diffuse))
+    return torch.cat(parts, dim=1)
 
 
 def hints_at(
@@ -246,10 +330,24 @@ def hints_at(
     ldr: Float[Tensor, "B 3 S S"],
     hdr: Float[Tensor, "B 3 S S"],
     size: int,
-) -> Float[Tensor, "B 12 s s"]:
+    *,
+    geometry: HintGeometry = "silhouette",
+    image: Float[Tensor, "B 3 H W"] | None = None,
+    normals: Float[Tensor, "B 3 H W"] | None = None,
+) -> Float[Tensor, "B C s s"]:
     """`relighting_hints` at `size` px: area-downsampled for a latent model (the one place both
-    training and `encode_conditions` take them from)."""
-    hints = relighting_hints(mask, ldr, hdr)
+    training and `encode_conditions` take them from).
+
+    `geometry` "silhouette": 12 channels from the dome (or from `normals`). "estimated": 15
+    channels, from `normals` (`gaffer_diffusion.geometry.input_normals`; the benchmark's oracle
+    passes true normals) and the de-lit ratio of `image`.
+    """
+    if geometry == "estimated":
+        if image is None or normals is None:
+            raise ValueError("estimated hint geometry needs the input images and their normals")
+        hints = relighting_hints(mask, ldr, hdr, normals=normals.to(mask.device), image=image)
+    else:
+        hints = relighting_hints(mask, ldr, hdr, normals=normals)
     if hints.shape[-1] != size:
         hints = F.interpolate(hints, size=(size, size), mode="area")
     return hints

@@ -496,8 +496,24 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
             raise CheckpointMismatchError(
                 f"{root / MANIFEST_NAME}: `config.{key}` is {flags[key]!r}; expected true or false."
             )
-    config = config_from_modules(unet, vae, encoder, sched, name=name, hints=flags["hints"])
-    config = dataclasses.replace(config, residual=flags["residual"])
+    manifest_config = manifest.get("config", {})
+    # added in gaffer-tiny 0.5 (issue 31); older manifests mean the earlier behaviour
+    residual_space = manifest_config.get("residual_space", "display")
+    hint_geometry = manifest_config.get("hint_geometry", "silhouette")
+    if residual_space not in ("display", "log_linear"):
+        raise CheckpointMismatchError(
+            f"{root / MANIFEST_NAME}: `config.residual_space` is {residual_space!r}; expected "
+            "'display' or 'log_linear'."
+        )
+    if hint_geometry not in ("silhouette", "estimated"):
+        raise CheckpointMismatchError(
+            f"{root / MANIFEST_NAME}: `config.hint_geometry` is {hint_geometry!r}; expected "
+            "'silhouette' or 'estimated'."
+        )
+    config = config_from_modules(
+        unet, vae, encoder, sched, name=name, hints=flags["hints"], hint_geometry=hint_geometry
+    )
+    config = dataclasses.replace(config, residual=flags["residual"], residual_space=residual_space)
     model = NeuralGafferModel(config=config, unet=unet.eval(), vae=vae, image_encoder=encoder)
     return LoadResult(model=model, report=report)
 

@@ -113,15 +113,66 @@ def make_object(index: int, seed: int, out: Path) -> Path:
     return path
 
 
+def make_pybullet_object(mesh: Path, index: int, seed: int, out: Path) -> Path:
+    """Import one of pybullet_data's `random_urdfs` meshes, give it a random material of the
+    procedural family (diffuse to mirror) and a random orientation, and export it to
+    `out/pybullet_{index:03d}.glb`.
+
+    The random_urdfs shapes (1,000 faceted blobs generated for grasping research) ship inside the
+    pybullet wheel under its zlib licence; they carry no material worth keeping (a flat .mtl).
+    """
+    import bpy
+
+    rng = np.random.default_rng([seed, 100_000 + index])
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.obj_import(filepath=str(mesh))
+    meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    for obj in meshes:
+        obj.data.materials.clear()
+        obj.rotation_euler = tuple(float(a) for a in rng.uniform(0.0, 2.0 * math.pi, size=3))
+    mat = _random_material(rng, f"mat_pb_{index:03d}")
+    for obj in meshes:
+        obj.data.materials.append(mat)
+    path = out / f"pybullet_{index:03d}.glb"
+
+    def export(tmp: Path) -> None:
+        bpy.ops.export_scene.gltf(filepath=str(tmp), export_format="GLB", use_selection=False)
+
+    atomic_write(path, export)
+    return path
+
+
+def pybullet_random_meshes(first: int, count: int) -> list[tuple[int, Path]]:
+    """`(index, path)` of pybullet_data's `random_urdfs/NNN/NNN.obj` for NNN in first..first+count-1.
+
+    Disjoint ranges give disjoint splits (the model card's recipes use 0-79 train, 500-511
+    validation, 750-761 test).
+    """
+    import pybullet_data  # pyright: ignore[reportMissingModuleSource]
+
+    root = Path(pybullet_data.getDataPath()) / "random_urdfs"
+    out = []
+    for index in range(first, first + count):
+        path = root / f"{index:03d}" / f"{index:03d}.obj"
+        if path.is_file():
+            out.append((index, path))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of `python -m gaffer_data.render.procedural`."""
     parser = argparse.ArgumentParser(prog="python -m gaffer_data.render.procedural")
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--count", type=int, default=8)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pybullet-first", type=int, default=None)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(name)s: %(message)s")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.pybullet_first is not None:
+        for index, mesh in pybullet_random_meshes(args.pybullet_first, args.count):
+            make_pybullet_object(mesh, index, args.seed, args.out)
+        return 0
     for index in range(args.count):
         make_object(index, args.seed, args.out)
     return 0

@@ -12,6 +12,8 @@
     gaffer-diffusion evaluate --dataset DIR --checkpoint CKPT [--base-model DIR] [--envmaps DIR]
         [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
     gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
+    gaffer-diffusion normals IMAGE --out NORMALS.png [--mask M|auto] [--output-size input|model]
+    gaffer-diffusion train-normals --data RENDERS --val RENDERS --out DIR [--minutes 15]
     gaffer-diffusion prepare IMAGE --out OUT.png [--mask M] [--compat neural-gaffer|default]
         (the model-ready square input on white and OUT_mask.png)
     gaffer-diffusion check --checkpoint DIR --base-model DIR   (validate the authors' release first)
@@ -52,6 +54,7 @@ from gaffer_diffusion.cli._photo import _check_photo_flags as _check_photo_flags
 from gaffer_diffusion.cli.authors import _check, _prepare
 from gaffer_diffusion.cli.demo import _demo
 from gaffer_diffusion.cli.evaluate import _evaluate
+from gaffer_diffusion.cli.normals import _normals, _train_normals
 from gaffer_diffusion.cli.parser import _parser
 from gaffer_diffusion.cli.relight import _relight
 from gaffer_diffusion.cli.train import _export, _init_random, _train
@@ -79,6 +82,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _prepare(args)
             case "check":
                 return _check(args)
+            case "normals":
+                return _normals(args)
+            case "train-normals":
+                return _train_normals(args)
             case "train":
                 return _train(args)
             case "export":

@@ -273,6 +273,7 @@ def _parser() -> argparse.ArgumentParser:
     )
 
     _add_authors_commands(sub)
+    _add_normals_commands(sub)
 
     i = sub.add_parser(
         "init-random", help="save a random-weight model in our format (demos, tests)"
@@ -392,6 +393,43 @@ def _envmap_path(value: str) -> Path:
     from gaffer_envmap.bundled import bundled_hdris
 
     return bundled_hdris().get(value, path)
+
+
+def _add_normals_commands(sub: Any) -> None:
+    """`normals` and `train-normals` (issue 31): the learned normal estimator alone, and its training."""
+    nm = sub.add_parser(
+        "normals",
+        help="estimate camera-frame normals of a photo's object (the geometry gaffer-tiny's hints use)",
+    )
+    nm.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
+    nm.add_argument(
+        "--mask",
+        type=_mask_arg,
+        help="object mask (white = object) for an RGB image, or 'auto' (GrabCut, written as "
+        "OUT.mask.png)",
+    )
+    nm.add_argument(
+        "--out", type=Path, required=True, help="output PNG: RGB = (n + 1) / 2, white outside"
+    )
+    nm.add_argument(
+        "--output-size",
+        choices=("input", "model"),
+        default="input",
+        help="'input' (default): at the photo's size and place; 'model': the estimator's square crop",
+    )
+    nm.add_argument(
+        "--estimator", type=Path, help="an estimator folder (default: the shipped gaffer-normals)"
+    )
+    tn = sub.add_parser(
+        "train-normals",
+        help="train the normal estimator on gaffer-data renders' normal passes (extra [train])",
+    )
+    tn.add_argument("--data", type=Path, required=True, help="training renders")
+    tn.add_argument("--val", type=Path, help="held-out renders: angular error vs the dome")
+    tn.add_argument("--out", type=Path, required=True, help="estimator folder to write")
+    tn.add_argument("--minutes", type=float, default=15.0, help="training time budget (15)")
+    tn.add_argument("--seed", type=int, default=0, help="seed (0)")
+    tn.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
 
 
 def _add_authors_commands(sub: Any) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
+import torch
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import RelightingConditions
@@ -52,6 +53,7 @@ def evaluate_dataset(
     perceptual: PerceptualMetric | Literal["auto"] | None = "auto",
     settings: dict[str, Any] | None = None,
     on_batch: Callable[[int, int], None] | None = None,
+    normals_of: Callable[[EvalPair, tuple[int, int, int] | None, int], Tensor] | None = None,
 ) -> DatasetEvaluation:
     """Relight every pair and score it against its ground truth.
 
@@ -63,6 +65,9 @@ def evaluate_dataset(
             otherwise the report says why not).
         settings: extra entries for the report's settings (e.g. the checkpoint path).
         on_batch: called as `on_batch(pairs_done, pairs_total)` after every batch.
+        normals_of: `(pair, crop box, size) -> [3, size, size]` camera-frame normals of the pair's
+            input for the hints (`RelightingConditions.normals`), e.g. the render's true normals
+            for the oracle row of the re-shading benchmark; None: the model's own geometry.
 
     Returns:
         A `DatasetEvaluation`; its settings record the sampling, seed, dtype, device and pair count.
@@ -115,6 +120,9 @@ def evaluate_dataset(
                 image=_to_chw(list(inputs)),
                 lighting=pair_lighting(batch, size, config.compat),
                 mask=_to_chw(list(input_alphas)) if config.keep_background else None,
+                normals=None
+                if normals_of is None
+                else torch.stack([normals_of(p, bx, size) for p, bx in zip(batch, boxes)]),
             )
 
         for relit in relight_built_batches(

@@ -16,6 +16,7 @@ from gaffer_diffusion.configs import (
     UNetConfig,
     VAEConfig,
 )
+from gaffer_diffusion.hints import HintGeometry
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.models.pixel import PixelAutoencoder
 
@@ -96,6 +97,7 @@ def config_from_modules(
     *,
     name: str = "loaded",
     hints: bool = False,
+    hint_geometry: HintGeometry = "silhouette",
 ) -> ModelConfig:
     """The `ModelConfig` that describes already-built modules (read from their own configs).
 
@@ -106,6 +108,7 @@ def config_from_modules(
         scheduler_config: a diffusers scheduler config dict; None for the authors' defaults.
         name: label stored in the config.
         hints: the UNet takes radiance hints (`ModelConfig.hints`; only a manifest records it).
+        hint_geometry: where the hints' normals come from (`ModelConfig.hint_geometry`; likewise).
 
     Raises:
         ConfigError: when the modules do not fit together.
@@ -133,4 +136,5 @@ def config_from_modules(
         image_encoder=enc_config,
         scheduler=sched,
         hints=hints,
+        hint_geometry=hint_geometry,
     )

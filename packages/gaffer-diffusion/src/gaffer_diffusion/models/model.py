@@ -59,7 +59,10 @@ class NeuralGafferModel:
         The target's latent (minus the input's when `config.residual`), times the VAE scaling factor:
         only this latent is scaled, never the conditioning latents (official implementation §1).
         """
-        z = latents - image_latents if self.config.residual else latents
+        if self.config.residual and self.config.residual_space == "log_linear":
+            z = _log_linear(latents) - _log_linear(image_latents)
+        else:
+            z = latents - image_latents if self.config.residual else latents
         return z * self.config.vae.scaling_factor
 
     def decodable_latents(
@@ -67,6 +70,8 @@ class NeuralGafferModel:
     ) -> Float[Tensor, "N 4 h w"]:
         """The inverse of `diffusion_target`: the raw VAE latents to decode from a sample z_0."""
         raw = z0 / self.config.vae.scaling_factor
+        if self.config.residual and self.config.residual_space == "log_linear":
+            return _from_log_linear(_log_linear(image_latents) + raw)
         return raw + image_latents if self.config.residual else raw
 
     @property
@@ -78,6 +83,25 @@ class NeuralGafferModel:
     def dtype(self) -> torch.dtype:
         """Dtype of the UNet's first parameter."""
         return next(self.unet.parameters()).dtype
+
+
+LOG_LINEAR_EPS = 0.02
+"""Linear radiance added before the log of `residual_space` "log_linear": keeps the ratio finite on
+black pixels and damps the noise of dark ones (sRGB 0.15 is linear 0.02)."""
+
+
+def _log_linear(pixels: Float[Tensor, "N 4 h w"]) -> Float[Tensor, "N 4 h w"]:
+    """log(linear + eps) of pixel-space latents in [-1, 1] (display sRGB, channels R, G, B, luma)."""
+    x = ((pixels.float() + 1.0) * 0.5).clamp(0.0, 1.0)
+    lin = torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return torch.log(lin + LOG_LINEAR_EPS).to(pixels.dtype)
+
+
+def _from_log_linear(log_lin: Float[Tensor, "N 4 h w"]) -> Float[Tensor, "N 4 h w"]:
+    """The inverse of `_log_linear` (clipped to the display range)."""
+    lin = (torch.exp(log_lin.float()) - LOG_LINEAR_EPS).clamp(0.0, 1.0)
+    x = torch.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin.pow(1.0 / 2.4) - 0.055)
+    return (x * 2.0 - 1.0).to(log_lin.dtype)
 
 
 def vae_posterior(

@@ -390,6 +390,9 @@ class RelightPipeline:
                 hdr=torch.cat([c.lighting.hdr, mirror_camera_x(c.lighting.hdr)]),
             ),
             mask=None if c.mask is None else torch.cat([c.mask, c.mask.flip(-1)]),
+            normals=None
+            if c.normals is None
+            else torch.cat([c.normals, _mirror_normals(c.normals)]),
         )
         if not (generator is None or isinstance(generator, torch.Generator)):
             generator = list(generator) * 2  # the mirrors draw next from the same generators
@@ -496,3 +499,9 @@ def _denoise(
     # clamp keeps NaN, so the caller's finiteness check still sees them
     images = torch.where(torch.isfinite(decoded.float()), images, decoded.float())
     return z, images
+
+
+def _mirror_normals(normals: Tensor) -> Tensor:
+    """Camera-frame normals of the mirrored image: flipped left-right, x negated."""
+    sign = torch.tensor([-1.0, 1.0, 1.0], device=normals.device, dtype=normals.dtype)
+    return normals.flip(-1) * sign.view(1, 3, 1, 1)

@@ -16,6 +16,7 @@ from torch import Tensor
 
 from gaffer_diffusion.conditioning import clip_preprocess
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.geometry import input_normals
 from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
@@ -127,7 +128,23 @@ class TrainingObjective:
             parts = [image_lat, hdr_lat, ldr_lat]
             if alphas is not None:  # radiance hints of the (possibly mirrored) inputs' masks
                 mask = alphas.repeat_interleave(t, dim=0)
-                parts.append(hints_at(mask, ldr, hdr, int(image_lat.shape[-1])))
+                geometry = m.config.hint_geometry
+                images = normals = None
+                if geometry == "estimated":
+                    # the estimator once per input, not once per target (issue 31)
+                    normals = input_normals(geometry, inputs, alphas).repeat_interleave(t, dim=0)
+                    images = inputs.repeat_interleave(t, dim=0)
+                parts.append(
+                    hints_at(
+                        mask,
+                        ldr,
+                        hdr,
+                        int(image_lat.shape[-1]),
+                        geometry=geometry,
+                        image=images,
+                        normals=normals,
+                    )
+                )
         cond = torch.cat(parts, dim=1)  # [BT, 12 (+12 hints), h, w]
         noise = torch.randn(z0.shape, generator=gen).to(dev)
         lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up

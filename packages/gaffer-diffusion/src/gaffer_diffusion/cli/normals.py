@@ -1,0 +1,121 @@
+"""`gaffer-diffusion normals` and `train-normals` (issue 31): the learned normal estimator alone, and
+training it on gaffer-data renders (extra [train])."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from gaffer_diffusion import _cli_checks as checks
+from gaffer_diffusion.cli._common import _save_png
+from gaffer_diffusion.cli._photo import _check_photo_flags, _mask_out, _photo_and_mask
+
+
+def _validate_normals(args: argparse.Namespace) -> None:
+    checks.image_size("IMAGE", args.image)
+    if isinstance(args.mask, Path):
+        checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
+    if args.estimator is not None:
+        checks.need_dir("--estimator", args.estimator, "a folder written by `train-normals`")
+    checks.writable_file("--out", args.out)
+    if args.out.suffix.lower() != ".png":
+        raise checks.ConfigError(f"`--out` is {str(args.out)!r}; expected a .png file.")
+
+
+def _normals(args: argparse.Namespace) -> int:
+    """Camera-frame normals of a photo's object, as a PNG (RGB = (n + 1) / 2, x right, y up, z toward
+    the camera; white outside the mask) at the model's framing, or pasted back at the photo's size."""
+    _validate_normals(args)
+    _check_photo_flags(args)
+    import numpy as np
+    import torch
+    import torch.nn.functional as F
+
+    from gaffer_diffusion.geometry.estimator import (
+        estimate_normals,
+        load_normal_estimator,
+        shipped_normal_estimator,
+    )
+    from gaffer_diffusion.photo import prepare_photo
+
+    photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    est = (
+        shipped_normal_estimator()
+        if args.estimator is None
+        else load_normal_estimator(args.estimator)
+    )
+    size = est.config.resolution
+    prepared = prepare_photo(photo, alpha, size=size)
+    inp = prepared.model_input
+    normals = estimate_normals(est, inp.image.float(), inp.mask.float())  # [1, 3, S, S]
+    if args.output_size == "input":
+        fr = prepared.framing
+        h, w = alpha.shape
+        # the square's pixels back into the photo: sample the normals at each photo pixel
+        ys = (torch.arange(h, dtype=torch.float32) + 0.5 - fr.top) / fr.side_y * 2 - 1
+        xs = (torch.arange(w, dtype=torch.float32) + 0.5 - fr.left) / fr.side_x * 2 - 1
+        grid = torch.stack(torch.meshgrid(xs, ys, indexing="xy"), dim=-1)[None]
+        full = F.grid_sample(normals, grid, mode="bilinear", align_corners=False)[0]
+        full = full / full.norm(dim=0, keepdim=True).clamp_min(1e-6)
+        m = torch.from_numpy(alpha > 0.5)[None]
+        enc = torch.where(m, (full + 1) / 2, torch.ones_like(full))
+    else:
+        m = inp.mask[0] > 0.5
+        enc = torch.where(m, (normals[0] + 1) / 2, torch.ones_like(normals[0]))
+    arr = (enc.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
+    _save_png(args.out, arr)
+    extra = f"; {note}" if note else ""
+    print(f"wrote {args.out} (camera-frame normals, RGB = (n + 1) / 2){extra}")
+    return 0
+
+
+def _train_normals(args: argparse.Namespace) -> int:
+    checks.need_dir("--data", args.data, "a gaffer-data render folder (with normal passes)")
+    if args.val is not None:
+        checks.need_dir("--val", args.val, "a gaffer-data render folder (with normal passes)")
+    checks.replaceable_dir("--out", args.out)
+    checks.finite("--minutes", args.minutes, lo=0.1, hi=24 * 60.0)
+    checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
+    from gaffer_diffusion.cli.train import _training_module
+
+    _training_module("train-normals")
+    import json
+    import logging
+    import time
+
+    from gaffer_diffusion._atomic_dir import atomic_dir
+    from gaffer_diffusion.training.normals import (
+        NormalTrainConfig,
+        angular_errors,
+        load_geometry_views,
+        train_normal_estimator,
+    )
+
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    t0 = time.perf_counter()
+    train = load_geometry_views(args.data)
+    print(f"read {train.images.shape[0]} training views in {time.perf_counter() - t0:.0f} s")
+    config = NormalTrainConfig(
+        max_seconds=args.minutes * 60.0, seed=args.seed, threads=args.threads
+    )
+    est, stats = train_normal_estimator(train, config)
+    extra: dict[str, object] = {"training": {**stats, "data": str(args.data), "seed": args.seed}}
+    if args.val is not None:
+        errors = angular_errors(est, load_geometry_views(args.val))
+        extra["validation"] = {
+            "data": str(args.val),
+            "views": errors.views,
+            "mean_angular_error_deg": round(errors.estimated_deg, 3),
+            "silhouette_dome_mean_angular_error_deg": round(errors.silhouette_dome_deg, 3),
+        }
+        print(
+            f"validation: mean angular error {errors.estimated_deg:.2f} deg "
+            f"(silhouette dome {errors.silhouette_dome_deg:.2f} deg) on {errors.views} views"
+        )
+    with atomic_dir(args.out) as stage:
+        est.save(stage, extra=extra)
+    print(
+        f"wrote {args.out} ({int(stats['steps'])} steps, {stats['seconds']:.0f} s); "
+        f"{json.dumps(extra.get('validation', {}))}"
+    )
+    return 0
