@@ -92,11 +92,13 @@ def true_normals_reader(split: Path) -> Any:
     return normals_of
 
 
-def evaluate_row(row: Row, split: Path, limit: int | None, out_dir: Path) -> dict[str, Any]:
+def evaluate_row(
+    row: Row, split: Path, limit: int | None, out_dir: Path, stride: int = 1
+) -> dict[str, Any]:
     from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
     from gaffer_diffusion.geometry.estimator import shipped_normal_estimator_path
     from gaffer_diffusion.loading import load_pretrained
-    from gaffer_diffusion.pipelines import RelightPipeline
+    from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
     from gaffer_diffusion.pretrained import gaffer_tiny_path, load_gaffer_tiny
     from gaffer_diffusion.suggested import read_suggested_sampling
 
@@ -107,14 +109,22 @@ def evaluate_row(row: Row, split: Path, limit: int | None, out_dir: Path) -> dic
     if row.geometry == "dome" and model.config.hint_geometry != "silhouette":
         raise SystemExit(f"{row.label}: geometry dome needs a silhouette-hint model")
     suggested = read_suggested_sampling(folder)
-    pairs = dataset_pairs(split, limit=limit)
+    # every `stride`-th pair: a spread subset of every object (validation sweeps); 1 = all
+    pairs = dataset_pairs(split, limit=limit)[::stride]
     config = EvaluationConfig(
-        sampling=suggested.sampling_config(),
+        sampling=SamplingConfig(
+            num_inference_steps=suggested.num_inference_steps,
+            guidance_scale=float(suggested.guidance_scale),
+            average_samples=suggested.average_samples,
+            mirror_average=suggested.mirror_average,
+        ),
         seed=0,
         batch_size=8,
         compat=suggested.compat,
         keep_background=True,
-        object_fraction=suggested.object_fraction,
+        object_fraction=None
+        if suggested.object_fraction is None
+        else float(suggested.object_fraction),
     )
     weights = folder / "unet" / "diffusion_pytorch_model.safetensors"
     settings = {
@@ -123,6 +133,7 @@ def evaluate_row(row: Row, split: Path, limit: int | None, out_dir: Path) -> dic
         "unet_sha256": _sha256(weights),
         "hint_geometry": row.geometry,
         "split": str(split),
+        "pair_stride": stride,
     }
     params = sum(p.numel() for p in model.unet.parameters())
     if model.config.hint_geometry == "estimated":
@@ -152,12 +163,12 @@ def evaluate_row(row: Row, split: Path, limit: int | None, out_dir: Path) -> dic
         "pairs": len(pairs),
         "object_psnr_raw": r.mean_object_raw.psnr,
         "object_psnr_aligned": r.mean_object_aligned.psnr,
-        "object_stlpips": r.mean_object_raw.lpips,
+        "object_stlpips": r.mean_object_raw.perceptual,
         "closer_than_input": result.closer_than_input,
         "full_psnr": r.mean_raw.psnr,
         "input_object_psnr_raw": b.mean_object_raw.psnr,
         "input_object_psnr_aligned": b.mean_object_aligned.psnr,
-        "input_object_stlpips": b.mean_object_raw.lpips,
+        "input_object_stlpips": b.mean_object_raw.perceptual,
         "eval_seconds": seconds,
         "unet_sha256": settings["unet_sha256"],
     }
@@ -251,6 +262,7 @@ def main(argv: list[str] | None = None) -> int:
         "--row", action="append", default=[], help="LABEL=MODEL_DIR,GEOMETRY,TRAIN_S"
     )
     parser.add_argument("--limit", type=int, default=None, help="pairs per row (default: all)")
+    parser.add_argument("--stride", type=int, default=1, help="score every N-th pair (1: all)")
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--update-baseline", action="store_true")
@@ -266,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     out_dir = common.RESULTS / NAME if args.update_baseline else common.RUNS / NAME
     results = []
     for row in rows:
-        res = evaluate_row(row, split, limit, out_dir)
+        res = evaluate_row(row, split, limit, out_dir, args.stride)
         print(
             f"{row.label:>24} [{row.geometry}]: object PSNR {res['object_psnr_raw']:.2f} raw / "
             f"{res['object_psnr_aligned']:.2f} aligned (input {res['input_object_psnr_raw']:.2f} / "
@@ -277,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
         results.append(res)
     payload = {"machine": meta, "split": str(split), "rows": results}
     name = f"{NAME}_{split.name}" if not args.quick else f"{NAME}_quick"
+    payload["pair_stride"] = args.stride
     for path in common.write_results(
         name, payload, figure(results, split.name), args.update_baseline
     ):

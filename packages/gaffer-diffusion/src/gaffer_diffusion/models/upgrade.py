@@ -54,6 +54,7 @@ def to_estimated_geometry(model: NeuralGafferModel, *, scaling_factor: float) ->
 def main(argv: list[str] | None = None) -> int:
     """`python -m gaffer_diffusion.models.upgrade SRC DST --scaling-factor S`."""
     from gaffer_diffusion.loading import load_pretrained, save_pretrained
+    from gaffer_diffusion.suggested import read_suggested_sampling
 
     parser = argparse.ArgumentParser(prog="python -m gaffer_diffusion.models.upgrade")
     parser.add_argument("src", type=Path, help="a gaffer-tiny <= 0.4 model folder")
@@ -62,7 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         model = load_pretrained(args.src).model
-        save_pretrained(to_estimated_geometry(model, scaling_factor=args.scaling_factor), args.dst)
+        upgraded = to_estimated_geometry(model, scaling_factor=args.scaling_factor)
+        # the sampling the source suggests (1 DDIM step, mirror mean, 75% framing) carries over
+        save_pretrained(upgraded, args.dst, suggested=read_suggested_sampling(args.src))
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

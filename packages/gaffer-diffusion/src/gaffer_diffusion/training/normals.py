@@ -68,10 +68,12 @@ class GeometryViews:
 
 
 def view_normals_cam(
-    obj: RenderedObject, rel: str, w2c: np.ndarray, box: tuple[int, int, int], size: int
+    obj: RenderedObject, rel: str, w2c: np.ndarray, box: tuple[int, int, int] | None, size: int
 ) -> Tensor:
+    """`[3, size, size]` camera-frame normals of a view's normal pass (`box`: the crop, None: whole)."""
     n_world = read_exr_array(obj.path(rel))[..., :3].astype(np.float32)
-    n_world = crop_square(n_world, box, 0.0)
+    if box is not None:
+        n_world = crop_square(n_world, box, 0.0)
     t = torch.from_numpy(np.ascontiguousarray(n_world)).permute(2, 0, 1)[None]
     t = F.interpolate(t, size=(size, size), mode="bilinear", antialias=True)[0]
     # Blender camera axes are x right, y up, z backward (toward the viewer): the hints' frame
