@@ -11,6 +11,7 @@ new target scale. Fine-tuning (`configs/gaffer-tiny-stage4.json`) then teaches i
 
 import argparse
 import dataclasses
+import logging
 import sys
 from pathlib import Path
 
@@ -22,6 +23,8 @@ from gaffer_diffusion.models.pixel import PixelAutoencoder
 from gaffer_diffusion.models.surgery import expand_conv_in
 
 __all__ = ["to_estimated_geometry"]
+
+logger = logging.getLogger(__name__)
 
 
 def to_estimated_geometry(model: NeuralGafferModel, *, scaling_factor: float) -> NeuralGafferModel:
@@ -61,15 +64,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("dst", type=Path, help="where the upgraded model is written")
     parser.add_argument("--scaling-factor", type=float, required=True)
     args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         model = load_pretrained(args.src).model
         upgraded = to_estimated_geometry(model, scaling_factor=args.scaling_factor)
         # the sampling the source suggests (1 DDIM step, mirror mean, 75% framing) carries over
         save_pretrained(upgraded, args.dst, suggested=read_suggested_sampling(args.src))
     except ConfigError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        logger.error("error: %s", exc)
         return 2
-    print(f"upgraded model: {args.dst}")
+    logger.info("upgraded model: %s", args.dst)
     return 0
 
 
