@@ -27,9 +27,9 @@ from gaffer_diffusion.hints import (
     silhouette_normals,
 )
 from gaffer_diffusion.models import build_model
-from gaffer_diffusion.models.upgrade import to_estimated_geometry
 from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
 from gaffer_diffusion.pipelines.relight import _mirror_normals
+from gaffer_diffusion.upgrade import to_estimated_geometry
 
 H = 32
 

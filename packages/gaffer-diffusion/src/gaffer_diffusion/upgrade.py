@@ -6,7 +6,7 @@ The UNet's first convolution gains the three de-lit-ratio hint channels, zero-in
 and the config switches `hint_geometry` to "estimated" and `residual_space` to "log_linear" with a
 new target scale. Fine-tuning (`configs/gaffer-tiny-stage4.json`) then teaches it the new target.
 
-    python -m gaffer_diffusion.models.upgrade SRC DST --scaling-factor 1.5
+    python -m gaffer_diffusion.upgrade SRC DST --scaling-factor 1.5
 """
 
 import argparse
@@ -18,9 +18,11 @@ from pathlib import Path
 from gaffer_diffusion.configs import CONDITIONING_LATENTS, LATENT_CHANNELS
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.hints import ESTIMATED_HINT_CHANNELS
+from gaffer_diffusion.loading import load_pretrained, save_pretrained
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.models.pixel import PixelAutoencoder
 from gaffer_diffusion.models.surgery import expand_conv_in
+from gaffer_diffusion.suggested import read_suggested_sampling
 
 __all__ = ["to_estimated_geometry"]
 
@@ -55,11 +57,8 @@ def to_estimated_geometry(model: NeuralGafferModel, *, scaling_factor: float) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`python -m gaffer_diffusion.models.upgrade SRC DST --scaling-factor S`."""
-    from gaffer_diffusion.loading import load_pretrained, save_pretrained
-    from gaffer_diffusion.suggested import read_suggested_sampling
-
-    parser = argparse.ArgumentParser(prog="python -m gaffer_diffusion.models.upgrade")
+    """`python -m gaffer_diffusion.upgrade SRC DST --scaling-factor S`."""
+    parser = argparse.ArgumentParser(prog="python -m gaffer_diffusion.upgrade")
     parser.add_argument("src", type=Path, help="a gaffer-tiny <= 0.4 model folder")
     parser.add_argument("dst", type=Path, help="where the upgraded model is written")
     parser.add_argument("--scaling-factor", type=float, required=True)
