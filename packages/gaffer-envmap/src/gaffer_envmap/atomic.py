@@ -177,10 +177,16 @@ def atomic_files(directory: str | os.PathLike[str]) -> Iterator[Path]:
         ) from exc
     try:
         yield stage
-        for f in sorted(stage.iterdir()):
-            if f.is_file():
-                _fsync_file(f)
-                os.replace(f, dest / f.name)
+        staged = [f for f in sorted(stage.iterdir()) if f.is_file()]
+        # a folder in a file's place would stop the moves half-way: refuse before the first one
+        clash = next((dest / f.name for f in staged if (dest / f.name).is_dir()), None)
+        if clash is not None:
+            raise EnvmapWriteError(
+                f"Cannot write `{clash}`: it is a folder; move it away (nothing was written)."
+            )
+        for f in staged:
+            _fsync_file(f)
+            os.replace(f, dest / f.name)
         _fsync_dir(dest)
     finally:
         shutil.rmtree(stage, ignore_errors=True)

@@ -17,10 +17,16 @@ import numpy as np
 
 from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
-from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
+from gaffer_envmap.cli_support import (
+    add_debug_argument,
+    check_output_dir,
+    check_output_file,
+    cli_failure,
+    exit_codes_epilog,
+)
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.errors import GafferEnvmapError, NonFiniteError
-from gaffer_envmap.io import read_envmap, write_envmap, write_png
+from gaffer_envmap.io import check_write_suffix, read_envmap, write_envmap, write_png
 from gaffer_envmap.poses import W2CBlender, orbit_w2c_blender
 from gaffer_envmap.sanitize import add_sanitize_argument
 from gaffer_envmap.stats import describe, total_power
@@ -124,6 +130,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_rotate(args: argparse.Namespace) -> int:
+    check_output_file("dst", args.dst)  # outputs before any work (issue 36)
+    check_write_suffix(args.dst, "dst")
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
     from gaffer_envmap.rotate import rotate_to_camera  # torch: only once the inputs are good
@@ -144,6 +152,7 @@ def _cmd_rotate(args: argparse.Namespace) -> int:
 
 
 def _cmd_encode(args: argparse.Namespace) -> int:
+    check_output_dir("--out-dir", args.out_dir, files=("ldr.png", "hdr.png"))
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
     from gaffer_envmap.encode import encode_lighting  # torch: only once the inputs are good
@@ -164,6 +173,7 @@ def _cmd_encode(args: argparse.Namespace) -> int:
 
 
 def _cmd_augment(args: argparse.Namespace) -> int:
+    check_output_dir("--out-dir", args.out_dir, files=(f"{Path(args.src).stem}_*.exr",))
     env = read_envmap(args.src, sanitize=args.sanitize)
     out = Path(args.out_dir)
     stem = Path(args.src).stem
@@ -184,6 +194,7 @@ def _cmd_procedural(args: argparse.Namespace) -> int:
         )
     if args.height < 8:
         raise GafferEnvmapError(f"`--height` is {args.height}; pass 8 or more rows.")
+    check_output_dir("--out-dir", args.out_dir, files=("proc_*.exr",))
     out = Path(args.out_dir)
     with atomic_files(out) as stage:  # all maps or none (issue 17)
         for seed in range(args.first, args.first + args.count):
@@ -204,6 +215,10 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     from gaffer_envmap.rotate import rotate_to_camera
 
     out = Path(args.out)
+    views = [f"view_{k}" for k in range(4)]
+    check_output_dir(
+        "--out", out, files=("world.png", "overview.png", "summary.json"), folders=views
+    )
     out.mkdir(parents=True, exist_ok=True)
     env = read_bundled_hdri(args.hdri)
     poses = [orbit_w2c_blender(az, 20.0, 2.0) for az in (0.0, 90.0, 180.0, 270.0)]

@@ -1,12 +1,20 @@
 """The command lines' error boundary (issue 17), shared by all four gaffer CLIs: `--debug`, the one-line
-report of an expected failure, and the exit-code epilog of `--help`.
+report of an expected failure, the exit-code epilog of `--help`, and the output-path checks every
+command runs before any work (`check_output_file`, `check_output_dir`; issue 36).
 
 A CLI-side module: it writes to stderr, which library modules never do (they raise `GafferError`s).
 """
 
 import argparse
+import glob
+import os
 import sys
+import tempfile
 import traceback
+from collections.abc import Iterable
+from pathlib import Path
+
+from gaffer_envmap.errors import OutputPathError
 
 DEBUG_HELP = (
     "on an error, also print the Python traceback to stderr (before the usual one-line message "
@@ -45,3 +53,131 @@ def cli_failure(line: str, code: int, args: object = None) -> int:
 def exit_codes_epilog(codes: "dict[int, str]") -> str:
     """The `--help` epilog listing a CLI's exit codes, e.g. "Exit codes: 0 done; 2 refused; ..."."""
     return "Exit codes: " + "; ".join(f"{code} {meaning}" for code, meaning in codes.items()) + "."
+
+
+def _nearest_existing(path: Path) -> Path:
+    probe = path.absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return probe
+
+
+def _can_create_in(folder: Path) -> bool:
+    """A file can be made in `folder` (a probe, removed at once: permission bits alone do not tell
+    for root, read-only mounts or /proc)."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def _check_creatable(flag: str, path: Path, shown: Path) -> None:
+    """`path` (a folder, absent or not) can be created and written: its nearest existing ancestor is a
+    writable folder."""
+    anc = _nearest_existing(path)
+    if not anc.is_dir():
+        raise OutputPathError(
+            f"`{flag}` {shown} cannot be created: {anc} is a file, not a folder; pass another path."
+        )
+    if not os.access(anc, os.W_OK | os.X_OK) or not _can_create_in(anc):
+        raise OutputPathError(
+            f"`{flag}` {shown} cannot be created: {anc} is not writable; pass a path in a writable "
+            "folder."
+        )
+
+
+def check_output_file(
+    flag: str,
+    path: str | os.PathLike[str],
+    *,
+    suffixes: Iterable[str] | None = None,
+    siblings: Iterable[str | os.PathLike[str]] = (),
+) -> None:
+    """Refuse, before any work, an output file that cannot be written as asked.
+
+    Args:
+        flag: the argument's name as the user typed it (`--out`, `dst`), named in the message.
+        path: the file the command will write.
+        suffixes: the suffixes the command can write (lower case, with the dot); None: any.
+        siblings: other files the command writes with it (e.g. `OUT.mask.png`): none may be a folder.
+
+    Raises:
+        OutputPathError: the path is empty, a folder, has a suffix not in `suffixes`, sits under a
+            file, or cannot be created or replaced (permissions); a sibling is a folder. The message
+            names `flag` and the fix.
+    """
+    p = Path(path)
+    if str(path) in ("", "."):
+        raise OutputPathError(f"`{flag}` is empty; pass an output file name.")
+    if p.is_dir():
+        example = p / f"out{next(iter(suffixes), '') if suffixes else ''}"
+        raise OutputPathError(f"`{flag}` {p} is a folder; pass a file name (e.g. {example}).")
+    if suffixes is not None:
+        allowed = tuple(suffixes)
+        if p.suffix.lower() not in allowed:
+            raise OutputPathError(
+                f"`{flag}` {p} has suffix {p.suffix or '(none)'!r}; pass a {' or '.join(allowed)} file."
+            )
+    for sib in siblings:
+        if Path(sib).is_dir():
+            raise OutputPathError(
+                f"`{flag}` {p}: {sib} is a folder where this command writes a file beside the "
+                "output; move it away or pass another output name."
+            )
+    if p.exists():
+        if not os.access(p, os.W_OK) or not os.access(p.absolute().parent, os.W_OK | os.X_OK):
+            raise OutputPathError(f"`{flag}` {p} exists and cannot be replaced (permissions).")
+        return
+    _check_creatable(flag, p.absolute().parent, p)
+
+
+def check_output_dir(
+    flag: str,
+    path: str | os.PathLike[str],
+    *,
+    files: Iterable[str] = (),
+    folders: Iterable[str] = (),
+) -> None:
+    """Refuse, before any work, an output folder that cannot be written as asked.
+
+    Args:
+        flag: the argument's name as the user typed it (`--out`, `--out-dir`), named in the message.
+        path: the folder the command writes into (created when missing).
+        files: names (or glob patterns) of the files the command writes directly in it: an existing
+            folder by that name would make the last move of a complete set fail half-way.
+        folders: names of the sub-folders the command writes in it: none may be a file.
+
+    Raises:
+        OutputPathError: the path is empty, a file, under a file, not writable, or one of the
+            `files` is a folder or one of the `folders` a file. The message names `flag` and the fix.
+    """
+    p = Path(path)
+    if str(path) == "":
+        raise OutputPathError(f"`{flag}` is empty; pass an output folder.")
+    if p.exists() and not p.is_dir():
+        raise OutputPathError(
+            f"`{flag}` {p} is a file, not a folder; pass a folder (it is created when missing)."
+        )
+    if not p.exists():
+        _check_creatable(flag, p, p)
+        return
+    if not os.access(p, os.W_OK | os.X_OK) or not _can_create_in(p):
+        raise OutputPathError(f"`{flag}` {p} is not writable (permissions); pass another folder.")
+    for name in files:
+        hits = (
+            glob.glob(glob.escape(str(p)) + os.sep + name) if glob.has_magic(name) else [p / name]
+        )
+        for hit in map(Path, hits):
+            if hit.is_dir():
+                raise OutputPathError(
+                    f"`{flag}` {p}: {hit} is a folder where this command writes a file; move it "
+                    "away or pass another folder."
+                )
+    for name in folders:
+        sub = p / name
+        if sub.exists() and not sub.is_dir():
+            raise OutputPathError(
+                f"`{flag}` {p}: {sub} is a file where this command writes a folder; move it away "
+                "or pass another folder."
+            )

@@ -61,3 +61,14 @@ class HalfOverflowError(GafferEnvmapError, ValueError):
 
 class MissingDependencyError(GafferEnvmapError, ImportError):
     """An optional dependency is needed for this call; the message holds the exact pip command."""
+
+
+class OutputPathError(GafferEnvmapError, ValueError):
+    """A command's output path cannot be written as asked: a file where a folder is expected (or the
+    reverse, also for a file or folder the command writes inside its output folder), an unwritable
+    place, or a format whose writer is not installed. Raised before any work (issue 36)."""
+
+
+class ParameterError(GafferEnvmapError, ValueError):
+    """A lighting parameter is out of range or inconsistent (a sun elevation of 120 degrees, a
+    turbidity of 0, a time without a UTC offset); the message names it and the valid range."""

@@ -17,7 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from gaffer_envmap.environment_map import EnvironmentMap, PixelAlignment
-from gaffer_envmap.errors import EnvmapReadError, EnvmapWriteError, ShapeError
+from gaffer_envmap.errors import (
+    EnvmapReadError,
+    EnvmapWriteError,
+    MissingDependencyError,
+    ShapeError,
+)
 from gaffer_envmap.io_exr import (
     ExrCompression,
     ExrDtype,
@@ -25,7 +30,7 @@ from gaffer_envmap.io_exr import (
     read_exr,
     write_exr,
 )
-from gaffer_envmap.io_hdr import read_hdr, write_hdr
+from gaffer_envmap.io_hdr import read_hdr, require_openimageio, write_hdr
 from gaffer_envmap.io_ldr import LdrEncoding, decode_to_linear, read_ldr
 from gaffer_envmap.io_ldr import write_png as _write_png
 from gaffer_envmap.sanitize import SanitizePolicy
@@ -34,6 +39,7 @@ from gaffer_envmap.sanitize import sanitize as _sanitize
 __all__ = [
     "READ_SUFFIXES",
     "WRITE_SUFFIXES",
+    "check_write_suffix",
     "read_envmap",
     "read_image_array",
     "write_envmap",
@@ -242,7 +248,7 @@ def write_envmap(
     """
     arr, attrs = _envmap_array(env_or_array)
     target = Path(path)
-    suffix = target.suffix.lower()
+    suffix = check_write_suffix(target)
     if suffix == ".exr":
         write_exr(
             target, arr, dtype=dtype, overflow=overflow, compression=compression, attributes=attrs
@@ -251,16 +257,44 @@ def write_envmap(
         if dtype != "float32":
             raise ValueError(f"`dtype` {dtype!r} applies to .exr only; RGBE has one format.")
         write_hdr(target, arr)
-    elif suffix in _LDR_SUFFIXES:
+
+
+def check_write_suffix(path: str | os.PathLike[str], argument: str = "path") -> str:
+    """The lower-case suffix of an environment-map destination, once its writer is known to be
+    installed: `write_envmap` calls it first, a command line before any work (issue 36).
+
+    Args:
+        path: the destination.
+        argument: the name the message gives the path (a CLI passes its own, e.g. `dst`).
+
+    Returns:
+        ".exr" or ".hdr".
+
+    Raises:
+        EnvmapWriteError: a suffix other than `WRITE_SUFFIXES` (8-bit images named as such).
+        MissingDependencyError: `.hdr` without OpenImageIO (`pip install "gaffer-envmap[hdr]"`).
+    """
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix in _LDR_SUFFIXES:
         raise EnvmapWriteError(
-            f"`path` {str(target)!r}: an 8-bit image cannot hold HDR radiance. Tone-map / encode "
-            "it (e.g. `gaffer_envmap.encode`) and write it with `write_png`."
+            f"`{argument}` {str(target)!r}: an 8-bit image cannot hold HDR radiance. Tone-map / "
+            "encode it (e.g. `gaffer_envmap.encode`) and write it with `write_png`, or pass a .exr "
+            "or .hdr file."
         )
-    else:
+    if suffix not in WRITE_SUFFIXES:
         raise EnvmapWriteError(
-            f"`path` {str(target)!r} has suffix {target.suffix!r}; supported: "
+            f"`{argument}` {str(target)!r} has suffix {target.suffix or '(none)'!r}; supported: "
             f"{', '.join(WRITE_SUFFIXES)}."
         )
+    if suffix == ".hdr":
+        try:
+            require_openimageio()
+        except MissingDependencyError as exc:
+            raise MissingDependencyError(
+                f"`{argument}` {str(target)!r}: {exc}; or write a .exr file."
+            ) from exc
+    return suffix
 
 
 def write_png(path: str | os.PathLike[str], rgb01_or_uint8: np.ndarray) -> None:

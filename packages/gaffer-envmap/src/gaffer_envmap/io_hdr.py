@@ -23,11 +23,20 @@ from gaffer_envmap.errors import (
     ShapeError,
 )
 
-__all__ = ["read_hdr", "write_hdr"]
+__all__ = ["read_hdr", "require_openimageio", "write_hdr"]
 
 logger = logging.getLogger(__name__)
 
 _INSTALL_HINT = 'pip install "gaffer-envmap[hdr]"'
+
+
+def require_openimageio() -> None:
+    """Refuse early when OpenImageIO (the `.hdr` reader and writer) is not installed.
+
+    Raises:
+        MissingDependencyError: with the exact pip command.
+    """
+    _oiio()
 
 
 def _oiio() -> ModuleType:
