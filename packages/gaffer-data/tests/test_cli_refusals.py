@@ -130,3 +130,47 @@ def test_pool_check_passes_good_maps_and_reads_radiance_headers(tmp_path):
     garbage.write_bytes(b"not an image at all")
     with pytest.raises(InputError, match="no readable EXR or Radiance header"):
         envmap_size(garbage)
+
+
+def _output_fixtures(tmp_path):
+    """A file where a folder is expected, a folder where a file is, and output folders whose
+    slots (a file the command writes, or a sub-folder) hold the wrong kind (issue 36)."""
+    (tmp_path / "afile").write_text("a file where a folder is expected")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "rec").mkdir()
+    (tmp_path / "rec" / "objects").write_text("a file where objects/ goes")
+    (tmp_path / "rec2" / "envmaps" / "city.exr").mkdir(parents=True)
+    (tmp_path / "ds" / "dataset.json").mkdir(parents=True)
+    (tmp_path / "sch" / "gaffer.rendered_object-9.schema.json").mkdir(parents=True)
+    (tmp_path / "clf" / "classifier.json").mkdir(parents=True)
+
+
+_NO = "{T}/no"  # a folder that does not exist: the output is checked before any scan
+OUTPUT_CASES = [
+    ("recipe {T}/afile --procedural 0", "`out` {T}/afile is a file"),
+    ("recipe {T}/afile/r --procedural 0", "`out`"),
+    ("recipe {T}/rec --procedural 0", "objects is a file"),
+    ("recipe {T}/rec2 --procedural 0", "city.exr is a folder"),
+    ("recipe {T}/r --procedural 0 --seed -1", "`--seed` is -1"),
+    (f"render --objects {_NO} --envmaps {_NO} --out {{T}}/afile", "`--out` {T}/afile is a file"),
+    (f"render --objects {_NO} --envmaps {_NO} --out {{T}}/ds", "dataset.json is a folder"),
+    (f"render --objects {_NO} --envmaps {_NO} --out {{T}}/r --seed -1", "`--seed` is -1"),
+    (f"render-multiview --objects {_NO} --envmaps {_NO} --out {{T}}/afile", "`--out`"),
+    (f"render-multiview --objects {_NO} --envmaps {_NO} --out {{T}}/r --seed -2", "`--seed`"),
+    ("schema --out {T}/afile", "`--out` {T}/afile is a file"),
+    ("schema --out {T}/sch", "schema.json is a folder"),
+    (f"filter {_NO} --out {{T}}/adir", "`--out` {T}/adir is a folder"),
+    (f"train-classifier {_NO} {_NO} --out {{T}}/afile", "`--out`"),
+    (f"train-classifier {_NO} {_NO} --out {{T}}/clf", "classifier.json is a folder"),
+    (f"convert-authors {_NO} --out {{T}}/afile", "`--out`"),
+]
+
+
+@pytest.mark.parametrize(("argv", "words"), OUTPUT_CASES)
+def test_bad_output_paths_are_refused_before_any_work(tmp_path, capsys, argv, words):
+    _output_fixtures(tmp_path)
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    assert main([a.replace("{T}", str(tmp_path)) for a in argv.split()]) == 2
+    err = capsys.readouterr().err
+    assert words.replace("{T}", str(tmp_path)) in err and err.count("\n") == 1, err
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before

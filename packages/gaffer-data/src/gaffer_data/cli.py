@@ -15,7 +15,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_data.errors import GafferDataError
-from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
+from gaffer_envmap.cli_support import (
+    add_debug_argument,
+    check_output_dir,
+    check_output_file,
+    cli_failure,
+    exit_codes_epilog,
+)
 from gaffer_envmap.errors import GafferEnvmapError
 from gaffer_envmap.sanitize import add_sanitize_argument
 
@@ -89,6 +95,25 @@ def _check_render_args(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"`--world-map-resolution` is {args.world_map_resolution}; pass 0 (automatic)..16384."
         )
+    _check_seed(args.seed)
+    # the dataset folder: its manifests are files, objects/ a folder (issue 36: before any scan)
+    check_output_dir(
+        "--out",
+        args.out,
+        files=("dataset.json", "_plan.json", "failures.jsonl"),
+        folders=("objects",),
+    )
+
+
+MAX_SEED = 2**63 - 1
+"""Largest `--seed` (numpy's seed sequences take any non-negative integer; this keeps it an int64)."""
+
+
+def _check_seed(seed: int) -> None:
+    from gaffer_data.errors import ConfigError
+
+    if not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"`--seed` is {seed}; pass an integer in 0..{MAX_SEED} (e.g. 0).")
 
 
 def _run_render(args: argparse.Namespace, config: "RenderConfig") -> int:
@@ -178,6 +203,13 @@ def _recipe(args: argparse.Namespace) -> int:
         )
     if not args.out.strip():  # Path("") would be the current folder
         raise ConfigError("`out` is empty; pass the folder to write the recipe into.")
+    _check_seed(args.seed)
+    check_output_dir(
+        "out",
+        args.out,
+        files=("envmaps/*.exr",),
+        folders=("objects", "envmaps", "objects/procedural", "objects/pybullet"),
+    )
     recipe = build_default_recipe(
         Path(args.out),
         procedural=args.procedural,
@@ -192,6 +224,7 @@ def _recipe(args: argparse.Namespace) -> int:
 def _filter(args: argparse.Namespace) -> int:
     from gaffer_data.filter.run import filter_objects
 
+    check_output_file("--out", args.out)
     summary = filter_objects(
         args.src,
         args.out,
@@ -209,6 +242,7 @@ def _filter(args: argparse.Namespace) -> int:
 def _train(args: argparse.Namespace) -> int:
     from gaffer_data.filter.classifier import train_classifier
 
+    check_output_dir("--out", args.out, files=("model.pkl", "classifier.json"))
     report = train_classifier(args.features, args.labels, args.out, folds=args.folds)
     print(json.dumps(dataclasses.asdict(report), indent=1))
     return 0
@@ -218,6 +252,7 @@ def _convert_authors(args: argparse.Namespace) -> int:
     from gaffer_data.convert import ConvertOptions, convert_authors
     from gaffer_data.dataset.manifest import read_json_value
 
+    check_output_dir("--out", args.out, files=("dataset.json",), folders=("objects",))
     object_ids = None
     if args.object_list is not None:
         ids = read_json_value(args.object_list)
@@ -241,6 +276,7 @@ def _convert_authors(args: argparse.Namespace) -> int:
 def _schema(args: argparse.Namespace) -> int:
     from gaffer_data.dataset.json_schema import write_schemas
 
+    check_output_dir("--out", args.out, files=("*.schema.json",))
     for path in write_schemas(args.out):
         print(path)
     return 0
