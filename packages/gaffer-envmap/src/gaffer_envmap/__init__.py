@@ -74,6 +74,17 @@ _EXPORTS: dict[str, str] = {
     "uv_to_direction": "conventions",
     "write_envmap": "io",
     "write_png": "io",
+    "ParameterError": "errors",
+    "PhraseReading": "phrase",
+    "SkyConfig": "sky",
+    "StudioConfig": "studio",
+    "StudioLight": "studio",
+    "SunPosition": "sky",
+    "read_phrase": "phrase",
+    "sky_envmap": "sky",
+    "studio_envmap": "studio",
+    "sun_direction": "sky",
+    "sun_position_at": "sun_position",
     "yaw_roll": "augment",
 }
 
@@ -125,10 +136,12 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         HalfOverflowError,
         MissingDependencyError,
         NonFiniteError,
+        ParameterError,
         PoseError,
         ShapeError,
     )
     from gaffer_envmap.io import read_envmap, read_image_array, write_envmap, write_png
+    from gaffer_envmap.phrase import PhraseReading, read_phrase
     from gaffer_envmap.poses import (
         IDENTITY_LAYOUT_W2C,
         C2WOpenCV,
@@ -141,7 +154,10 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_envmap.rotate import rotate_to_camera
     from gaffer_envmap.sanitize import SanitizeReport, sanitize
     from gaffer_envmap.sh import directionality, irradiance, project_sh, reconstruct_sh, sh_basis
+    from gaffer_envmap.sky import SkyConfig, SunPosition, sky_envmap, sun_direction
     from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
+    from gaffer_envmap.studio import StudioConfig, StudioLight, studio_envmap
+    from gaffer_envmap.sun_position import sun_position_at
 
 __all__ = [
     "COMPAT_MODES",
@@ -161,10 +177,16 @@ __all__ = [
     "LightingEncoding",
     "MissingDependencyError",
     "NonFiniteError",
+    "ParameterError",
+    "PhraseReading",
     "PixelAlignment",
     "PoseError",
     "SanitizeReport",
     "ShapeError",
+    "SkyConfig",
+    "StudioConfig",
+    "StudioLight",
+    "SunPosition",
     "W2CBlender",
     "__version__",
     "augment_pool",
@@ -196,6 +218,7 @@ __all__ = [
     "read_bundled_hdri",
     "read_envmap",
     "read_image_array",
+    "read_phrase",
     "reconstruct_sh",
     "resize_conservative",
     "resize_conservative_torch",
@@ -203,7 +226,11 @@ __all__ = [
     "row_solid_angle",
     "sanitize",
     "sh_basis",
+    "sky_envmap",
     "solid_angle",
+    "studio_envmap",
+    "sun_direction",
+    "sun_position_at",
     "to_center_alignment",
     "total_power",
     "uv_to_direction",

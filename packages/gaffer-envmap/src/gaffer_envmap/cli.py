@@ -17,6 +17,7 @@ import numpy as np
 
 from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.augment import augment_pool
+from gaffer_envmap.cli_sky import add_sky_parser
 from gaffer_envmap.cli_support import (
     add_debug_argument,
     check_output_dir,
@@ -382,6 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sp.add_argument("--height", type=int, default=128, help="rows (width = 2 x height)")
     sp.set_defaults(func=_cmd_procedural)
+
+    add_sky_parser(sub)
 
     sp = sub.add_parser(
         "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"
