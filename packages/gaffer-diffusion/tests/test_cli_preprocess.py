@@ -95,8 +95,12 @@ def test_cli_errors_are_clear(tmp_path, model_dir, capsys) -> None:
     maps = ["--ldr", str(tmp_path / "a.png"), "--hdr", str(tmp_path / "b.png")]
     args = ["relight", str(tmp_path / "rgb.png"), *maps]
     args += ["--checkpoint", str(model_dir), "--out", str(tmp_path / "o.png")]
+    # no alpha and no --mask: the mask is estimated (issue 36); a flat grey picture has no object
     assert main(args) == 2
-    assert "no alpha channel" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "no alpha channel, so its object mask" in err and "--mask MASK.png" in err
+    assert err.count("\n") == 1 and not (tmp_path / "o.png").exists()
+    assert not (tmp_path / "o.mask.png").exists()
     args = ["relight", str(tmp_path / "rgb.png"), *maps, "--checkpoint", str(tmp_path)]
     args += ["--out", str(tmp_path / "o.png")]
     assert main(args) == 2

@@ -32,6 +32,16 @@ def _files(tmp: Path) -> dict[str, str]:
     (tmp / "text.exr").write_text("not an EXR")
     (tmp / "adir").mkdir()
     (tmp / "emptydir").mkdir()
+    # issue 36: output folders whose slots hold the wrong kind (a folder where a file goes, or the
+    # reverse), and a folder of images for the grid mode
+    for slot in ("slot/o.mask.png", "spin/t_000.png", "prep/q_mask.png", "nrm/n.mask.png"):
+        (tmp / slot).mkdir(parents=True)
+    (tmp / "imgs").mkdir()
+    Image.fromarray(rgba).save(tmp / "imgs" / "good.png")
+    (tmp / "grid").mkdir()
+    (tmp / "grid" / "good").write_text("a file where the image's output folder goes")
+    (tmp / "model").mkdir()
+    (tmp / "model" / "unet").write_text("a file where a model's unet/ goes")
     return {k: str(tmp / k) for k in ("good.png", "afile", "adir", "emptydir")}
 
 
@@ -94,6 +104,22 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["prepare", str(tmp / "garbage.png"), "--out", out], "not a readable image", out),
         (["init-random", "--out", str(Path(afile) / "m")], "`--out`", None),
         (["train", "--config", str(tmp / "garbage.json")], "not valid JSON", None),
+        # issue 36: bad output paths, before any work
+        (relight(out=good), "is the input `IMAGE`", None),
+        (relight(out=str(tmp / "slot" / "o.png")), "o.mask.png is a folder", None),
+        (relight("--turntable", "2", out=str(tmp / "spin" / "t.png")), "t_000.png is a folder",
+         None),
+        (["relight", str(tmp / "imgs"), *light, "--out", str(tmp / "grid")],
+         "is a file where this command writes a folder", None),
+        (["relight", str(tmp / "imgs"), *light, "--out", afile], "`--out`", None),
+        (["prepare", good, "--out", str(tmp / "prep" / "q.png")], "q_mask.png is a folder", None),
+        (["prepare", good, "--out", adir], "`--out`", None),
+        (["prepare", good, "--out", good], "is the input `IMAGE`", None),
+        (["normals", good, "--out", adir], "`--out`", None),
+        (["normals", good, "--out", str(tmp / "nrm" / "n.png")], "n.mask.png is a folder", None),
+        (["normals", good, "--out", good], "is the input `IMAGE`", None),
+        (["init-random", "--out", afile], "`--out`", None),
+        (["init-random", "--out", str(tmp / "model")], "unet is a file", None),
         (["train", "--config", str(tmp / "none.json")], "`--config`", None),
         (["export", str(tmp / "no-ckpt"), "--out", str(tmp / "x")], "checkpoint", str(tmp / "x")),
     ]  # fmt: skip
@@ -153,3 +179,18 @@ def test_evaluate_output_checked_before_any_scoring(tmp_path, flag, capsys) -> N
     assert main(["evaluate", "--pred", str(tmp_path), "--gt", str(tmp_path), flag, str(dest)]) == 2
     err = capsys.readouterr().err
     assert flag in err and len(err.strip().splitlines()) == 1
+
+
+def test_train_refuses_an_output_dir_that_is_a_file_before_any_data_loads(tmp_path, capsys):
+    pytest.importorskip("accelerate")
+    from gaffer_diffusion.cli import main
+
+    (tmp_path / "afile").write_text("a file where the run folder goes")
+    (tmp_path / "renders").mkdir()
+    config = {"output_dir": "afile", "data": {"root": "renders"}}
+    (tmp_path / "c.json").write_text(json.dumps(config))
+    assert main(["train", "--config", str(tmp_path / "c.json")]) == 2
+    err = capsys.readouterr().err
+    assert "`--config`" in err and "`output_dir`" in err and "is a file" in err
+    assert len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "c.json", "renders"]

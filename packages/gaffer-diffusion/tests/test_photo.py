@@ -335,3 +335,90 @@ def test_cli_folder_reports_a_failed_image_and_goes_on(tmp_path, model_dir, caps
     out = tmp_path / "out" / "good" / "env.png"
     assert np.asarray(Image.open(out)).shape == (40, 30, 4)
     assert not list((tmp_path / "out").rglob(".*tmp*"))  # atomic writes leave no temporary file
+
+
+# ----- issue 36: a photo without a usable alpha gets the automatic mask by default -----
+
+
+def _no_alpha_photo(tmp_path: Path, kind: str) -> tuple[Path, np.ndarray]:
+    rgb, disc = _scene(90, 130)
+    if kind == "rgb-jpeg":
+        return _save(rgb, tmp_path / "p.jpg", quality=95), disc
+    opaque = np.dstack([rgb, np.full(rgb.shape[:2], 255, np.uint8)])  # RGBA, alpha all 255
+    return _save(opaque, tmp_path / "p.png"), disc
+
+
+@pytest.mark.parametrize("kind", ["rgb-jpeg", "opaque-rgba"])
+def test_cli_relight_estimates_the_mask_of_a_photo_without_usable_alpha(
+    tmp_path, model_dir, capsys, kind
+) -> None:
+    pytest.importorskip("cv2")
+    image, disc = _no_alpha_photo(tmp_path, kind)
+    assert main([*_args(tmp_path, model_dir, image), "--out", str(tmp_path / "o.png")]) == 0
+    said = capsys.readouterr().out
+    why = "has no alpha channel" if kind == "rgb-jpeg" else "is all opaque"
+    assert why in said and "mask estimated" in said and "GrabCut" in said
+    assert f"--mask {tmp_path / 'o.mask.png'}" in said  # how to pass a corrected one
+    m = np.asarray(Image.open(tmp_path / "o.mask.png")) > 127
+    assert m.shape == disc.shape and (m & disc).sum() / (m | disc).sum() > 0.8
+    # `--mask PATH` still wins: no estimate, no mask written
+    _save((disc * 255).astype(np.uint8), tmp_path / "m.png")
+    args = _args(tmp_path, model_dir, image, "--mask", str(tmp_path / "m.png"))
+    assert main([*args, "--out", str(tmp_path / "given.png")]) == 0
+    assert "estimated" not in capsys.readouterr().out
+    assert (tmp_path / "given.png").is_file() and not (tmp_path / "given.mask.png").exists()
+
+
+def test_cli_estimated_mask_is_written_with_the_outputs_or_not_at_all(
+    tmp_path, model_dir, monkeypatch, capsys
+) -> None:
+    pytest.importorskip("cv2")
+    from gaffer_diffusion.errors import ConfigError
+
+    image, _ = _no_alpha_photo(tmp_path, "rgb-jpeg")
+
+    def fails(*_a, **_k):
+        raise ConfigError("the model could not be loaded (a test)")
+
+    monkeypatch.setattr("gaffer_diffusion.cli.relight._load_model", fails)
+    assert main([*_args(tmp_path, model_dir, image), "--out", str(tmp_path / "o.png")]) == 2
+    assert "a test" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("o")) == []
+    spin = ["--turntable", "2", "--video", "gif", "--out", str(tmp_path / "t.png")]
+    assert main([*_args(tmp_path, model_dir, image), *spin]) == 2
+    assert not list(tmp_path.glob("t*"))
+
+
+def test_cli_turntable_and_prepare_write_the_estimated_mask_beside_their_outputs(
+    tmp_path, model_dir, capsys
+) -> None:
+    pytest.importorskip("cv2")
+    image, _ = _no_alpha_photo(tmp_path, "opaque-rgba")
+    spin = ["--turntable", "2", "--video", "gif", "--out", str(tmp_path / "t.png")]
+    assert main([*_args(tmp_path, model_dir, image), *spin]) == 0
+    assert {"t_000.png", "t_001.png", "t.gif", "t.mask.png"} <= {p.name for p in tmp_path.iterdir()}
+    assert main(["prepare", str(image), "--out", str(tmp_path / "q.png"), "--size", "32"]) == 0
+    assert (tmp_path / "q.png").is_file() and (tmp_path / "q_mask.png").is_file()
+    assert (tmp_path / "q.mask.png").is_file() and "all opaque" in capsys.readouterr().out
+
+
+def test_usable_alpha_ignores_an_all_opaque_alpha(tmp_path) -> None:
+    from gaffer_diffusion.photo import usable_alpha
+
+    rgb, disc = _scene(20, 30)
+    opaque = read_photo(
+        _save(np.dstack([rgb, np.full((20, 30), 255, np.uint8)]), tmp_path / "a.png")
+    )
+    cut = read_photo(_save(np.dstack([rgb, disc.astype(np.uint8) * 255]), tmp_path / "b.png"))
+    assert usable_alpha(read_photo(_save(rgb, tmp_path / "c.png"))) is None
+    assert usable_alpha(opaque) is None
+    assert np.array_equal(usable_alpha(cut) > 0.5, disc)
+
+
+def test_cli_normals_estimates_the_mask_of_an_rgb_photo(tmp_path, capsys) -> None:
+    pytest.importorskip("cv2")
+    image, disc = _no_alpha_photo(tmp_path, "rgb-jpeg")
+    assert main(["normals", str(image), "--out", str(tmp_path / "n.png")]) == 0
+    assert "has no alpha channel: mask estimated by GrabCut" in capsys.readouterr().out
+    assert np.asarray(Image.open(tmp_path / "n.png")).shape == (*disc.shape, 3)
+    assert np.asarray(Image.open(tmp_path / "n.mask.png")).shape == disc.shape

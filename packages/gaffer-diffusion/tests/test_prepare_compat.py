@@ -145,9 +145,15 @@ def test_cli_prepare_writes_their_steps_and_the_mask(tmp_path: Path, capsys) -> 
     assert main(["prepare", str(tmp_path / "obj.png"), "--out", str(tmp_path / "ours.png")]) == 0
     with Image.open(tmp_path / "ours.png") as im:
         assert _agree(np.asarray(im), got)[1] < 0.99
+    # an RGB photo without `--mask`: its mask is estimated, as in the app (issue 36), and written
+    # beside the outputs as prep.mask.png
+    pytest.importorskip("cv2")
     Image.fromarray(rgb).save(tmp_path / "rgb.png")
     assert (
         main(["prepare", str(tmp_path / "rgb.png"), "--compat", "neural-gaffer", "--out", str(out)])
-        == 2
+        == 0
     )
-    assert "--mask" in capsys.readouterr().err
+    said = capsys.readouterr().out
+    assert "has no alpha channel" in said and f"--mask {tmp_path / 'prep.mask.png'}" in said
+    with Image.open(tmp_path / "prep.mask.png") as im:
+        assert im.size == (w, h)

@@ -45,7 +45,14 @@ def paths(tmp_path: Path) -> dict[str, str]:
     (bad / "field.safetensors").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{trunc")
     badcfg = _fake_field(tmp_path / "badcfg")
     (badcfg / "config.json").write_text("[1, 2")
+    slots = tmp_path / "slots"  # a folder in each file's place
+    for name in ("field.safetensors", "000.png", "orbit.gif"):
+        (slots / name).mkdir(parents=True)
+    (tmp_path / "views_file").mkdir()
+    (tmp_path / "views_file" / "relit_views").write_text("a file where relit_views/ goes")
     return {
+        "slots": str(slots),
+        "views_file": str(tmp_path / "views_file"),
         "field": str(field),
         "data": str(data),
         "notest": str(notest),
@@ -68,7 +75,7 @@ CASES = [
     ("fit {data} --out {out} --batch-rays 100000000", "GiB for one step"),
     ("fit {data} --out {out} --batch-rays 0", "`--batch-rays` is 0"),
     ("fit {data} --out {out} --lighting-index 5", "`--lighting-index` is 5"),
-    ("fit {data} --out {file}", "is a file; pass a folder"),
+    ("fit {data} --out {file}", "is a file, not a folder; pass a folder"),
     ("fit {data} --out {under_file}", "is a file, not a folder"),
     ("fit {data} --out {out} --device gpu", "`--device` is 'gpu'"),
     ("fit {notest} --out {out} --early-stopping", "transforms_test.json"),
@@ -94,11 +101,22 @@ CASES = [
     ("render {field} --data {data} --out {out} --orbit 4 --fps 0", "`--fps` is 0.0"),
     ("render {field} --data {data} --out {out} --orbit 4 --fps nan", "`--fps` is nan"),
     ("render {field} --data {notest} --out {out}", "pick --split train"),
-    ("render {field} --data {data} --out {file}", "is a file; pass a folder"),
+    ("render {field} --data {data} --out {file}", "is a file, not a folder; pass a folder"),
     ("evaluate {field} --data {data} --target-lighting 7", "`--target-lighting` is 7"),
     ("evaluate {field} --data {data} --target-lighting 1 --json {tmp}", "is a folder; pass a"),
     ("evaluate {field} --data {data} --target-lighting 1 --pred-dir {file}", "is a file"),
     ("evaluate {field} --data {data} --target-lighting 1 --json {under_file}", "not a folder"),
+    # issue 36: a file or folder the command writes inside its output folder is of the other kind,
+    # or the output is one of the inputs
+    ("fit {data} --out {slots}", "field.safetensors is a folder"),
+    (RL + " --target-lighting 1 --out {slots}", "field.safetensors is a folder"),
+    (RL + " --target-lighting 1 --out {views_file}", "relit_views is a file"),
+    (RL + " --target-lighting 1 --out {field}", "is the input `field`"),
+    (RL + " --target-lighting 1 --out {data}", "is the input `--data`"),
+    (RL + " --target-lighting 1 --out {file}", "is a file, not a folder"),
+    ("render {field} --data {data} --out {slots}", "000.png is a folder"),
+    ("render {field} --data {data} --out {slots} --orbit 4", "orbit.gif is a folder"),
+    ("evaluate {field} --data {data} --target-lighting 1 --pred-dir {slots}", "000.png is a fo"),
 ]
 
 

@@ -7,10 +7,12 @@ the fix. Nothing here imports torch, diffusers or numpy: a refusal takes a fract
 
 import math
 import os
-import tempfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from gaffer_diffusion.errors import ConfigError, InputValueError
+from gaffer_envmap.cli_support import check_not_an_input, check_output_dir, check_output_file
+from gaffer_envmap.errors import OutputPathError
 
 MAX_STEPS = 1000
 """The noise schedule has 1000 training timesteps; more sampling steps than that do not exist."""
@@ -93,64 +95,36 @@ def envmap_file(flag: str, path: Path) -> None:
         )
 
 
-def _existing_ancestor(path: Path) -> Path:
-    p = path.absolute()
-    while not p.exists() and p != p.parent:
-        p = p.parent
-    return p
-
-
-def _check_creatable(flag: str, path: Path) -> None:
-    """`path` (absent) can be created: its nearest existing ancestor is a writable folder."""
-    anc = _existing_ancestor(path.parent if path.parent != Path("") else Path("."))
-    if not anc.is_dir():
-        raise ConfigError(
-            f"`{flag}` {path} cannot be created: {anc} is a file, not a folder; pass another path."
-        )
-    if not os.access(anc, os.W_OK | os.X_OK) or not _can_create_in(anc):
-        raise ConfigError(
-            f"`{flag}` {path} cannot be created: {anc} is not writable; pass a path in a writable folder."
-        )
-
-
-def _can_create_in(folder: Path) -> bool:
-    """A file can be made in `folder` (a probe, removed at once: permission bits alone do not tell
-    for root, read-only mounts or /proc)."""
+def _own_error(check: Callable[[], None]) -> None:
+    """Run a shared output-path check (`gaffer_envmap.cli_support`, one definition for the four CLIs)
+    and raise its refusal as this package's `ConfigError`."""
     try:
-        with tempfile.TemporaryFile(dir=folder):
-            return True
-    except OSError:
-        return False
+        check()
+    except OutputPathError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
-def writable_file(flag: str, path: Path) -> None:
-    """`path` can be written as a file: not a folder, and its folder exists or can be made, writable."""
-    if str(path) in ("", "."):
-        raise ConfigError(f"`{flag}` is empty; pass an output file name.")
-    if path.is_dir():
-        raise ConfigError(
-            f"`{flag}` {path} is a folder; pass a file name (e.g. {path / 'out.png'})."
-        )
-    if path.exists():
-        if not os.access(path, os.W_OK) or not os.access(path.parent, os.W_OK | os.X_OK):
-            raise ConfigError(f"`{flag}` {path} exists and cannot be replaced (permissions).")
-        return
-    _check_creatable(flag, path)
+def writable_file(flag: str, path: Path, *, siblings: Iterable[Path] = ()) -> None:
+    """`path` can be written as a file: not a folder, and its folder exists or can be made, writable;
+    none of `siblings` (files written beside it, e.g. `OUT.mask.png`) is a folder."""
+    _own_error(lambda: check_output_file(flag, path, siblings=siblings))
 
 
-def writable_dir(flag: str, path: Path) -> None:
-    """`path` can be written as a folder (it exists as one, writable, or can be created)."""
+def writable_dir(
+    flag: str, path: Path, *, files: Iterable[str] = (), folders: Iterable[str] = ()
+) -> None:
+    """`path` can be written as a folder (it exists as one, writable, or can be created); the files
+    and sub-folders the command writes in it are not of the other kind (`check_output_dir`)."""
     if str(path) in ("", "."):
         raise ConfigError(f"`{flag}` is empty or the current folder; pass a new output folder.")
-    if path.exists():
-        if not path.is_dir():
-            raise ConfigError(f"`{flag}` {path} is a file, not a folder; pass a folder.")
-        if not os.access(path, os.W_OK | os.X_OK):
-            raise ConfigError(
-                f"`{flag}` {path} is not writable (permissions); pass another folder."
-            )
-        return
-    _check_creatable(flag, path)
+    _own_error(lambda: check_output_dir(flag, path, files=files, folders=folders))
+
+
+def not_an_input(flag: str, path: Path, inputs: Iterable[tuple[str, object]]) -> None:
+    """`path` is none of the command's input files (writing it would replace the input); entries
+    that are not paths (None, 'auto') are skipped."""
+    paths = [(name, p) for name, p in inputs if isinstance(p, Path)]
+    _own_error(lambda: check_not_an_input(flag, path, paths))
 
 
 def replaceable_dir(flag: str, path: Path) -> None:
@@ -158,11 +132,14 @@ def replaceable_dir(flag: str, path: Path) -> None:
     writable, and an existing `path` is a folder."""
     writable_dir(flag, path)
     parent = path.absolute().parent
-    if parent.is_dir() and not (os.access(parent, os.W_OK | os.X_OK) and _can_create_in(parent)):
-        raise ConfigError(
-            f"`{flag}` {path}: its folder {parent} is not writable, and the output is built beside "
-            "it and renamed into place; pass a folder in a writable place."
-        )
+    if parent.is_dir():
+        try:  # the output is built in a sibling: the parent must take a new entry
+            check_output_dir(flag, parent)
+        except OutputPathError as exc:
+            raise ConfigError(
+                f"`{flag}` {path}: its folder {parent} is not writable, and the output is built "
+                "beside it and renamed into place; pass a folder in a writable place."
+            ) from exc
 
 
 def int_range(flag: str, value: int | None, lo: int, hi: int, fix: str = "") -> None:

@@ -180,6 +180,19 @@ def check_mask(mask: np.ndarray, what: str) -> None:
         )
 
 
+def usable_alpha(photo: Photo) -> np.ndarray | None:
+    """The photo's alpha when it can mark the object, else None (issue 36).
+
+    No alpha channel, or one that is all opaque (every value above 0.5, as many PNG exports write
+    it), says nothing about where the object is: the app and the command line then estimate a mask
+    (`gaffer_diffusion.automask`) instead of refusing the photo. An alpha with no opaque pixel is
+    returned as is, for `check_mask` to refuse (it marks no object).
+    """
+    if photo.alpha is None or bool((photo.alpha > ALPHA_THRESHOLD).all()):
+        return None
+    return photo.alpha
+
+
 def object_alpha(photo: Photo, mask: np.ndarray | None) -> np.ndarray:
     """The object mask: `mask` if given, else the photo's alpha.
 

@@ -181,3 +181,34 @@ def check_output_dir(
                 f"`{flag}` {p}: {sub} is a file where this command writes a folder; move it away "
                 "or pass another folder."
             )
+
+
+def check_not_an_input(
+    flag: str,
+    path: str | os.PathLike[str],
+    inputs: Iterable[tuple[str, str | os.PathLike[str] | None]],
+) -> None:
+    """Refuse an output that is one of the command's inputs: writing it would replace the input.
+
+    Args:
+        flag: the output argument's name, named in the message.
+        path: the output file or folder.
+        inputs: `(argument name, path)` of the inputs (None entries are skipped).
+
+    Raises:
+        OutputPathError: `path` is (or resolves to) one of `inputs`.
+    """
+    out = Path(path)
+    for name, given in inputs:
+        if given is None or str(given) == "":
+            continue
+        src = Path(given)
+        try:
+            same = out.exists() and src.exists() and os.path.samefile(out, src)
+        except OSError:
+            same = False
+        if same or out.absolute().resolve() == src.absolute().resolve():
+            raise OutputPathError(
+                f"`{flag}` {out} is the input `{name}`: writing it would replace the input; pass "
+                "another output path."
+            )

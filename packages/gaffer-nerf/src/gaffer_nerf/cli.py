@@ -302,7 +302,7 @@ def _fit(args: argparse.Namespace) -> int:
             f"`--early-stopping` / `--rank-selection` score held-out views, but {args.data} has no "
             "`transforms_test.json`; add a test split or drop those flags."
         )
-    preflight.check_output_dir(args.out, "--out")
+    preflight.check_output_dir(args.out, "--out", files=(*preflight.FIELD_FILES, "fit_report.json"))
     preflight.check_device_name(args.device)
     device = preflight.resolve_device(args.device)
 
@@ -491,7 +491,13 @@ def _check_relight_args(args: argparse.Namespace) -> Any:
     ):
         if path is not None:
             preflight.check_existing(path, flag, what)
-    preflight.check_output_dir(args.out, "--out")
+    preflight.check_output_dir(
+        args.out,
+        "--out",
+        files=(*preflight.FIELD_FILES, "relight_report.json"),
+        folders=("relit_views",),
+    )
+    preflight.check_not_an_input(args.out, "--out", [("field", args.field), ("--data", args.data)])
     preflight.check_device_name(args.device)
     return cfg
 
@@ -597,7 +603,9 @@ def _render(args: argparse.Namespace) -> int:
     preflight.check_count(args.orbit, "--orbit", high=preflight.MAX_ORBIT_FRAMES)
     if args.orbit is not None:
         preflight.check_fps(args.fps)
-    preflight.check_output_dir(args.out, "--out")
+    # NNN.png, or frame_NNN.png and orbit.gif
+    slots = ("frame_*.png", "orbit.gif") if args.orbit is not None else ("[0-9]*.png",)
+    preflight.check_output_dir(args.out, "--out", files=slots)
     preflight.check_device_name(args.device)
     device = preflight.resolve_device(args.device)
 
@@ -638,7 +646,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     if args.json is not None:
         preflight.check_output_file(args.json, "--json")
     if args.pred_dir is not None:
-        preflight.check_output_dir(args.pred_dir, "--pred-dir")
+        preflight.check_output_dir(args.pred_dir, "--pred-dir", files=("[0-9]*.png",))
     if args.lpips_backbone is not None:
         preflight.check_existing(args.lpips_backbone, "--lpips-backbone", "AlexNet weights")
     preflight.check_device_name(args.device)

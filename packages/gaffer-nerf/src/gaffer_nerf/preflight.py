@@ -8,11 +8,15 @@ it imports torch or loads a model and before any work. Each check raises `Config
 
 import json
 import math
-import os
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from gaffer_envmap.cli_support import check_not_an_input as shared_not_an_input
+from gaffer_envmap.cli_support import check_output_dir as shared_output_dir
+from gaffer_envmap.cli_support import check_output_file as shared_output_file
+from gaffer_envmap.errors import OutputPathError
 from gaffer_nerf.errors import CheckpointError, ConfigError, DatasetError, DatasetNotFoundError
 
 MAX_BATCH_RAYS = 1 << 18
@@ -24,6 +28,8 @@ MAX_ORBIT_FRAMES = 3600
 """Largest `render --orbit` (5 minutes at 12 fps): the frames are held in memory for the GIF."""
 MAX_FPS = 100.0
 """GIF frame delays are whole hundredths of a second, so 100 fps is the fastest a GIF can say."""
+FIELD_FILES = ("config.json", "field.safetensors")
+"""The files of a field folder (`gaffer_nerf.checkpoint`, named here without importing torch)."""
 _DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 
 
@@ -166,37 +172,33 @@ def check_existing(path: Path, flag: str, what: str) -> None:
         raise ConfigError(f"`{flag}` {path} does not exist; pass {what}.")
 
 
-def _nearest_existing(path: Path) -> Path:
-    probe = path.absolute()
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    return probe
-
-
-def check_output_dir(path: Path, flag: str) -> None:
-    """`path` can be created (or is a folder) and written: no file in its place or above it."""
-    if path.exists() and not path.is_dir():
-        raise ConfigError(f"`{flag}` {path} is a file; pass a folder (it is created).")
-    _check_writable(path, flag)
+def check_output_dir(
+    path: Path, flag: str, *, files: Iterable[str] = (), folders: Iterable[str] = ()
+) -> None:
+    """`path` can be created (or is a folder) and written: no file in its place or above it, and
+    none of the `files` it will hold is a folder, none of its `folders` a file (the shared check,
+    `gaffer_envmap.cli_support.check_output_dir`, raised as this package's `ConfigError`)."""
+    try:
+        shared_output_dir(flag, path, files=files, folders=folders)
+    except OutputPathError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
 def check_output_file(path: Path, flag: str) -> None:
     """`path` can be written as a file: not a folder, its parent a writable folder (or creatable)."""
-    if path.is_dir():
-        raise ConfigError(f"`{flag}` {path} is a folder; pass a file name.")
-    _check_writable(path.parent, flag, shown=path)
+    try:
+        shared_output_file(flag, path)
+    except OutputPathError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
-def _check_writable(folder: Path, flag: str, shown: Path | None = None) -> None:
-    anc = _nearest_existing(folder)
-    if not anc.is_dir():
-        raise ConfigError(
-            f"`{flag}` {shown or folder}: {anc} is a file, not a folder; pick another path."
-        )
-    if not os.access(anc, os.W_OK | os.X_OK):
-        raise ConfigError(
-            f"`{flag}` {shown or folder}: {anc} is not writable; pick a folder you can write to."
-        )
+def check_not_an_input(path: Path, flag: str, inputs: Iterable[tuple[str, Path | None]]) -> None:
+    """`path` is none of the command's inputs: writing there would replace them (e.g. a relit field
+    written over the field it was relit from)."""
+    try:
+        shared_not_an_input(flag, path, inputs)
+    except OutputPathError as exc:
+        raise ConfigError(str(exc)) from exc
 
 
 def check_device_name(device: str) -> None:

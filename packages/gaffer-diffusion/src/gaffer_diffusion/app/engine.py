@@ -45,6 +45,7 @@ from gaffer_diffusion.photo import (
     prepare_photo,
     read_mask,
     read_photo,
+    usable_alpha,
 )
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, relight_in_batches
 
@@ -326,7 +327,8 @@ class Engine:
     ) -> PhotoInput:
         """The photo, its mask and the model's input (the object cropped, on white, at the model size).
 
-        The mask is `mask_path`, else the photo's alpha, else GrabCut's estimate. `max_side` shrinks a
+        The mask is `mask_path`, else the photo's alpha when it marks the object (not all opaque:
+        `photo.usable_alpha`), else GrabCut's estimate. `max_side` shrinks a
         larger photo (and its mask) first, so that a turntable's full-size frames stay cheap.
 
         Raises:
@@ -341,7 +343,7 @@ class Engine:
         if mask_path is not None:
             self._check_image(mask_path, "mask")
             alpha = object_alpha(photo, read_mask(mask_path, photo))
-        elif photo.alpha is not None:
+        elif usable_alpha(photo) is not None:  # an all-opaque alpha marks no object: estimate
             alpha = object_alpha(photo, None)
         else:
             alpha = self._auto_mask(photo).astype(np.float32) / 255.0

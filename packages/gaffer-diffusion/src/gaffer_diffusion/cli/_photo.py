@@ -1,17 +1,21 @@
-"""The photo in and out, for `relight` and `prepare`: the mask flags (`--mask auto`,
-`--sam-checkpoint`, `--background`), reading a photo and its object mask, and turning a model result
-into the image written (pasted back at the photo's size, or the model's crop, over an optional
-environment backdrop)."""
+"""The photo in and out, for `relight`, `prepare` and `normals`: the mask flags (`--mask auto`,
+`--sam-checkpoint`, `--background`), reading a photo and its object mask (estimated by default when
+the photo has no usable alpha, as in the app), writing an estimated mask with the outputs, and turning
+a model result into the image written (pasted back at the photo's size, or the model's crop, over an
+optional environment backdrop)."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_diffusion.cli._common import _save_png
 from gaffer_diffusion.cli._lighting import _pose
-from gaffer_diffusion.errors import ConfigError, MissingDependencyError
+from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -52,35 +56,110 @@ def _check_photo_flags(args: argparse.Namespace) -> None:
             raise ConfigError(f"`--fov` is {args.fov}; expected degrees in [1, 180).")
 
 
+@dataclass(frozen=True, kw_only=True)
+class PhotoMask:
+    """A photo read for a command, with its object mask.
+
+    Attributes:
+        photo: the photo.
+        alpha: `[H, W]` float32 object mask in [0, 1].
+        note: what the report says about an estimated mask ("" for a given one or the alpha).
+        estimated: `[H, W]` uint8 estimated mask to write at `mask_out` together with the outputs
+            (complete or absent with them: `write_with_outputs`), or None.
+        mask_out: where an estimated mask goes (`OUT.mask.png`).
+    """
+
+    photo: Photo
+    alpha: np.ndarray
+    note: str = ""
+    estimated: np.ndarray | None = None
+    mask_out: Path | None = None
+
+    def write_mask_into(self, stage: Path) -> None:
+        """Write the estimated mask (if any) into `stage` under its final name."""
+        if self.estimated is not None and self.mask_out is not None:
+            _save_png(stage / self.mask_out.name, self.estimated)
+
+
+@contextlib.contextmanager
+def write_with_outputs(folder: Path, masks: Sequence[PhotoMask] = ()) -> Iterator[Path]:
+    """A staging folder for a command's output files; when the block ends without an error they move
+    into `folder` together with the estimated masks of `masks`, else none of them does (issue 36:
+    `OUT.mask.png` is one of the outputs, complete or absent with them)."""
+    from gaffer_diffusion._atomic_dir import staged_files
+
+    with staged_files(folder, ()) as stage:
+        yield stage
+        for m in masks:
+            m.write_mask_into(stage)
+
+
 def _photo_and_mask(
     args: argparse.Namespace, image: Path, mask: Path | str | None, mask_out: Path
-) -> tuple[Photo, np.ndarray, str]:
-    """The photo and its object mask, read and checked before any weights load, and a note on the mask
-    for the report (an automatic mask is written to `mask_out`)."""
+) -> PhotoMask:
+    """The photo and its object mask, read and checked before any weights load.
+
+    The mask is `--mask PATH` when given, else the photo's alpha when it marks the object, else an
+    estimate: `--sam-checkpoint`'s Segment Anything, or GrabCut (`--mask auto`, and by default for a
+    photo without a usable alpha: RGB, or an all-opaque alpha, as the app does). An estimated mask is
+    not written here: the caller writes it to `mask_out` with its outputs (`write_with_outputs`).
+    """
     import numpy as np
 
-    from gaffer_diffusion.photo import object_alpha, read_mask, read_photo
+    from gaffer_diffusion.photo import object_alpha, read_mask, read_photo, usable_alpha
 
     photo = read_photo(image)
     sam = getattr(args, "sam_checkpoint", None)
+    why = ""
     if sam is None and mask != "auto":
-        m = read_mask(mask, photo) if isinstance(mask, Path) else None
-        return photo, object_alpha(photo, m), ""
+        if isinstance(mask, Path):
+            return PhotoMask(photo=photo, alpha=object_alpha(photo, read_mask(mask, photo)))
+        if usable_alpha(photo) is not None:
+            return PhotoMask(photo=photo, alpha=object_alpha(photo, None))
+        why = (
+            f"`{image.name}` has no alpha channel"
+            if photo.alpha is None
+            else f"the alpha channel of `{image.name}` is all opaque"
+        )
     from gaffer_diffusion import automask
     from gaffer_diffusion.photo import check_mask
 
     if sam is not None:
         alpha, how = automask.sam_mask(photo.rgb_u8, sam), f"Segment Anything ({sam.name})"
     else:
-        alpha = automask.grabcut_mask(photo.rgb_u8)
-        how = "--mask auto, GrabCut: a classical fallback, not a learned segmenter"
+        try:
+            alpha = automask.grabcut_mask(photo.rgb_u8)
+        except MissingDependencyError as exc:
+            if not why:
+                raise
+            raise MissingDependencyError(
+                f"{why}, so its object mask is estimated, which needs OpenCV: pip install "
+                '"gaffer-diffusion[photo]" (opencv-python-headless), or pass `--mask MASK.png` '
+                "(white = object)."
+            ) from exc
+        except InputValueError as exc:
+            if not why:
+                raise
+            raise InputValueError(
+                f"{why}, so its object mask was estimated (GrabCut, a classical fallback that "
+                "expects one object roughly in the middle of the photo), but it found no object: "
+                "pass `--mask MASK.png` (white = object)."
+            ) from exc
+        how = "GrabCut (a classical fallback, not a learned segmenter" + (
+            ", as `--mask auto`)" if why else ")"
+        )
     check_mask(alpha, f"The automatic mask of `{image}`")
-    _save_png(mask_out, np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8))
     note = (
-        f"mask ({how}) written to {mask_out}: check it, and pass a corrected one with "
-        f"`--mask {mask_out}`"
+        f"{why + ': ' if why else ''}mask estimated by {how}, written to {mask_out}: check it, and "
+        f"pass a corrected one with `--mask {mask_out}`"
     )
-    return photo, alpha, note
+    return PhotoMask(
+        photo=photo,
+        alpha=alpha,
+        note=note,
+        estimated=np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8),
+        mask_out=mask_out,
+    )
 
 
 def _backdrop(

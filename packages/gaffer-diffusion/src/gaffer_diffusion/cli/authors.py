@@ -8,7 +8,12 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
-from gaffer_diffusion.cli._photo import _check_photo_flags, _mask_out, _photo_and_mask
+from gaffer_diffusion.cli._photo import (
+    _check_photo_flags,
+    _mask_out,
+    _photo_and_mask,
+    write_with_outputs,
+)
 
 
 def _validate_prepare(args: argparse.Namespace) -> None:
@@ -16,7 +21,15 @@ def _validate_prepare(args: argparse.Namespace) -> None:
     checks.image_size("IMAGE", args.image)
     if isinstance(args.mask, Path):
         checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
-    checks.writable_file("--out", args.out)
+    # OUT_mask.png (the model's mask) and OUT.mask.png (an estimated one) go beside it (issue 36)
+    siblings = [_model_mask_out(args.out), _mask_out(args.out)]
+    checks.writable_file("--out", args.out, siblings=siblings)
+    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
+
+
+def _model_mask_out(out: Path) -> Path:
+    """Where `prepare` writes the model-size mask: `OUT_mask.png`."""
+    return out.with_name(f"{out.stem}_mask.png")
 
 
 def _prepare(args: argparse.Namespace) -> int:
@@ -26,13 +39,14 @@ def _prepare(args: argparse.Namespace) -> int:
 
     from gaffer_diffusion.photo import prepare_photo
 
-    photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
-    prepared = prepare_photo(photo, alpha, size=args.size, compat=args.compat).model_input
-    mask_out = args.out.with_name(f"{args.out.stem}_mask.png")
-    _save_png(args.out, prepared.image[0])
+    read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    prepared = prepare_photo(read.photo, read.alpha, size=args.size, compat=args.compat).model_input
+    mask_out = _model_mask_out(args.out)
     arr = (prepared.mask[0, 0].clamp(0, 1).numpy() * 255.0).round().astype(np.uint8)
-    _save_png(mask_out, arr)
-    extra = f"; {note}" if note else ""
+    with write_with_outputs(args.out.parent, [read]) as stage:  # all of them or none
+        _save_png(stage / args.out.name, prepared.image[0])
+        _save_png(stage / mask_out.name, arr)
+    extra = f"; {read.note}" if read.note else ""
     print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat}){extra}")
     return 0
 

@@ -8,7 +8,12 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
-from gaffer_diffusion.cli._photo import _check_photo_flags, _mask_out, _photo_and_mask
+from gaffer_diffusion.cli._photo import (
+    _check_photo_flags,
+    _mask_out,
+    _photo_and_mask,
+    write_with_outputs,
+)
 
 
 def _validate_normals(args: argparse.Namespace) -> None:
@@ -17,7 +22,10 @@ def _validate_normals(args: argparse.Namespace) -> None:
         checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
     if args.estimator is not None:
         checks.need_dir("--estimator", args.estimator, "a folder written by `train-normals`")
-    checks.writable_file("--out", args.out)
+    # an estimated mask goes beside it, as OUT.mask.png (issue 36)
+    siblings = [] if isinstance(args.mask, Path) else [_mask_out(args.out)]
+    checks.writable_file("--out", args.out, siblings=siblings)
+    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
     if args.out.suffix.lower() != ".png":
         raise checks.ConfigError(f"`--out` is {str(args.out)!r}; expected a .png file.")
 
@@ -38,7 +46,8 @@ def _normals(args: argparse.Namespace) -> int:
     )
     from gaffer_diffusion.photo import prepare_photo
 
-    photo, alpha, note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    photo, alpha, note = read.photo, read.alpha, read.note
     est = (
         shipped_normal_estimator()
         if args.estimator is None
@@ -63,7 +72,8 @@ def _normals(args: argparse.Namespace) -> int:
         m = inp.mask[0] > 0.5
         enc = torch.where(m, (normals[0] + 1) / 2, torch.ones_like(normals[0]))
     arr = (enc.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
-    _save_png(args.out, arr)
+    with write_with_outputs(args.out.parent, [read]) as stage:  # the normals and their mask
+        _save_png(stage / args.out.name, arr)
     extra = f"; {note}" if note else ""
     print(f"wrote {args.out} (camera-frame normals, RGB = (n + 1) / 2){extra}")
     return 0

@@ -23,7 +23,14 @@ from gaffer_diffusion.cli._common import (
 )
 from gaffer_diffusion.cli._flag_checks import _check_model_args, _check_sampling_args
 from gaffer_diffusion.cli._lighting import _check_lighting_args, _envmap_lighting, _lighting
-from gaffer_diffusion.cli._photo import _check_photo_flags, _finish, _mask_out, _photo_and_mask
+from gaffer_diffusion.cli._photo import (
+    PhotoMask,
+    _check_photo_flags,
+    _finish,
+    _mask_out,
+    _photo_and_mask,
+    write_with_outputs,
+)
 from gaffer_diffusion.errors import (
     ConfigError,
     GafferDiffusionError,
@@ -33,8 +40,6 @@ from gaffer_diffusion.errors import (
 
 if TYPE_CHECKING:
     import numpy as np
-
-    from gaffer_diffusion.photo import Photo
 
 
 def _background_note(args: argparse.Namespace) -> str:
@@ -81,10 +86,25 @@ def _validate_relight(args: argparse.Namespace) -> None:
     _check_photo_flags(args)
     _check_model_args(args)
     if grid:
-        checks.writable_dir("--out", args.out)
+        # OUT/<image stem>/<map>.png and OUT/<image stem>.mask.png (issue 36: before any work)
+        images = (
+            _files(args.image, _IMAGE_SUFFIXES, "images", "IMAGE")
+            if args.image.is_dir()
+            else [args.image]
+        )
+        stems = [p.stem for p in images]
+        checks.writable_dir(
+            "--out", args.out, files=[f"{s}.mask.png" for s in stems], folders=stems
+        )
         return
     width, height = checks.image_size("IMAGE", args.image)
-    checks.writable_file("--out", args.out)
+    stem = args.out.with_suffix("")
+    siblings = [] if isinstance(args.mask, Path) else [_mask_out(args.out)]  # a mask estimate
+    if args.turntable > 1:  # STEM_000.png ... and STEM.gif / STEM.mp4
+        siblings += [stem.with_name(f"{stem.name}_{k:03d}.png") for k in range(args.turntable)]
+        siblings += [stem.with_name(f"{stem.name}.{ext}") for ext in ("gif", "mp4")]
+    checks.writable_file("--out", args.out, siblings=siblings)
+    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
     if args.turntable > 1:
         from gaffer_diffusion._video import mp4_encoder
 
@@ -103,7 +123,8 @@ def _relight(args: argparse.Namespace) -> int:
         return _relight_grid(args)
     # the photo and its mask are read and checked before any weights load
     stem = args.out.with_suffix("")
-    photo, alpha, mask_note = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    photo, alpha, mask_note = read.photo, read.alpha, read.note
     from gaffer_diffusion.photo import prepare_photo
     from gaffer_diffusion.pipelines import RelightPipeline, relight_in_batches
 
@@ -135,18 +156,21 @@ def _relight(args: argparse.Namespace) -> int:
         x for x in (_size_note(args, frames[0]), _background_note(args), mask_note) if x
     )
     if args.turntable > 1:
-        video = _write_turntable(args, stem, frames)
+        video = _write_turntable(args, stem, frames, read)
         print(f"wrote {len(frames)} frames {stem}_000.png ... and {video}; {notes}")
     else:
-        _save_png(args.out, frames[0])
+        with write_with_outputs(args.out.parent, [read]) as stage:  # the image and its mask
+            _save_png(stage / args.out.name, frames[0])
         print(f"wrote {args.out}; {notes}")
     return 0
 
 
-def _write_turntable(args: argparse.Namespace, stem: Path, frames: list[np.ndarray]) -> Path:
-    """`STEM_000.png ...` and the animation, complete or absent (issue 17): written to a hidden
-    staging folder, then moved in; an earlier run's frames of this prefix (more of them, or the other
-    video format) are removed only then, so no mix of old and new frames is left."""
+def _write_turntable(
+    args: argparse.Namespace, stem: Path, frames: list[np.ndarray], read: PhotoMask
+) -> Path:
+    """`STEM_000.png ...`, the animation and an estimated mask, complete or absent (issue 17):
+    written to a hidden staging folder, then moved in; an earlier run's frames of this prefix (more of
+    them, or the other video format) are removed only then, so no mix of old and new frames is left."""
     import glob
 
     from gaffer_diffusion._atomic_dir import staged_files
@@ -161,6 +185,7 @@ def _write_turntable(args: argparse.Namespace, stem: Path, frames: list[np.ndarr
         video = write_animation(
             [f[..., :3] for f in frames], stage / stem.name, fmt=args.video, fps=args.fps
         )
+        read.write_mask_into(stage)
     return stem.parent / video.name
 
 
@@ -183,7 +208,7 @@ def _relight_grid(args: argparse.Namespace) -> int:
             "With a folder of images, `--mask` must be a folder of masks too (or 'auto')."
         )
     failed: list[str] = []
-    loaded: list[tuple[Path, Photo, np.ndarray]] = []
+    loaded: list[tuple[Path, PhotoMask]] = []
     notes: list[str] = []
     for path in images:
         mask = (
@@ -192,16 +217,14 @@ def _relight_grid(args: argparse.Namespace) -> int:
             else args.mask
         )
         try:
-            photo, alpha, note = _photo_and_mask(
-                args, path, mask, args.out / f"{path.stem}.mask.png"
-            )
+            read = _photo_and_mask(args, path, mask, args.out / f"{path.stem}.mask.png")
         except GafferDiffusionError as exc:
             if not folder:
                 raise
             failed.append(f"{path.name}: {exc}")
             continue
-        loaded.append((path, photo, alpha))
-        notes += [note] if note else []
+        loaded.append((path, read))
+        notes += [read.note] if read.note else []
     if not loaded:
         raise InputValueError(f"None of the {len(images)} images could be used; {failed[0]}")
     import torch
@@ -214,7 +237,7 @@ def _relight_grid(args: argparse.Namespace) -> int:
     model = _load_model(args.checkpoint, args.base_model)
     pipe = RelightPipeline(model, _runtime(args))
     size = model.config.resolution
-    prepared = [prepare_photo(p, a, size=size, compat=_compat(args)) for _, p, a in loaded]
+    prepared = [prepare_photo(r.photo, r.alpha, size=size, compat=_compat(args)) for _, r in loaded]
     if args.envmaps is not None:
         maps = _files(args.envmaps, _ENVMAP_SUFFIXES, "environment maps", "--envmaps")
         lights = [(m.stem, m, _envmap_lighting(args, m, size)) for m in maps]
@@ -225,6 +248,7 @@ def _relight_grid(args: argparse.Namespace) -> int:
     sampling = _sampling(args)
     args.out.mkdir(parents=True, exist_ok=True)
     written = 0
+    masked: set[int] = set()
 
     def build(lo: int, hi: int) -> RelightingConditions:
         chunk = jobs[lo:hi]
@@ -250,6 +274,9 @@ def _relight_grid(args: argparse.Namespace) -> int:
                 try:
                     _save_png(dest, _finish(args, prepared[i], image, lights[e][1]))
                     written += 1
+                    if i not in masked:  # an estimated mask goes with its image's first output
+                        loaded[i][1].write_mask_into(args.out)
+                        masked.add(i)
                 except (GafferDiffusionError, OSError, ValueError) as exc:
                     failed.append(f"{dest}: {exc}")
             bar.update(len(chunk))

@@ -4,15 +4,23 @@ a training checkpoint as a model folder, and saving a random-weight one."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from gaffer_diffusion import _cli_checks as checks
+from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
+
+MODEL_FOLDERS = ("unet", "vae", "image_encoder", "scheduler")
+"""The sub-folders of a model folder (`loading.save_pretrained`), beside its manifest."""
+
+TRAIN_FOLDERS = ("checkpoints", "logs", "val", "final")
+"""What a training run writes in its `output_dir`."""
 
 
 def _init_random(args: argparse.Namespace) -> int:
     checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
-    checks.writable_dir("--out", args.out)
+    checks.writable_dir("--out", args.out, files=[MANIFEST_NAME], folders=MODEL_FOLDERS)
     from gaffer_diffusion.configs import get_preset
     from gaffer_diffusion.loading import save_pretrained
     from gaffer_diffusion.models.build import build_model
@@ -70,7 +78,12 @@ def _train(args: argparse.Namespace) -> int:
         ) from exc
     training = _training_module("Training")
     load_config, train = training.load_config, training.train
-    result = train(load_config(args.config), resume=args.resume)
+    config = load_config(args.config)
+    try:  # checkpoints/, logs/, val/ and final/ go in it: checked before any data or model loads
+        checks.writable_dir("output_dir", Path(config.output_dir), folders=TRAIN_FOLDERS)
+    except ConfigError as exc:
+        raise ConfigError(f"`--config` {args.config}: {exc}") from exc
+    result = train(config, resume=args.resume)
     print(
         f"trained steps {result.start_step} -> {result.step} ({result.stop_reason}) in "
         f"{result.seconds:.0f} s; checkpoint {result.checkpoint}; final model {result.final_model}"
