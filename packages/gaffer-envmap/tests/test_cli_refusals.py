@@ -51,6 +51,7 @@ OUTPUT_CASES = [
     ("rotate {S} {T}/afile/o.exr --w2c {W}", "`dst`"),
     ("rotate {S} {T}/o.png --w2c {W}", "`dst`"),
     ("rotate {S} {T}/o.txt --w2c {W}", "`dst`"),
+    ("rotate {S} {S} --w2c {W}", "is the input `src`"),  # would replace the source map
     ("encode {S} --w2c {W} --out-dir {T}/afile", "`--out-dir`"),
     ("encode {S} --w2c {W} --out-dir {T}/afile/enc", "`--out-dir`"),
     ("encode {S} --w2c {W} --out-dir {T}/slots", "ldr.png is a folder"),

@@ -20,6 +20,7 @@ from gaffer_envmap.augment import augment_pool
 from gaffer_envmap.cli_sky import add_sky_parser
 from gaffer_envmap.cli_support import (
     add_debug_argument,
+    check_not_an_input,
     check_output_dir,
     check_output_file,
     cli_failure,
@@ -132,6 +133,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def _cmd_rotate(args: argparse.Namespace) -> int:
     check_output_file("dst", args.dst)  # outputs before any work (issue 36)
+    check_not_an_input("dst", args.dst, [("src", args.src), ("--w2c", args.w2c)])
     check_write_suffix(args.dst, "dst")
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
