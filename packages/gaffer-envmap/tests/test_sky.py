@@ -1,5 +1,6 @@
 """Physical skies, the ephemeris, the phrase grammar and `gaffer-envmap sky` (issue 32 item 1)."""
 
+import itertools
 import math
 import sys
 from datetime import UTC, datetime, timedelta, timezone
@@ -163,7 +164,7 @@ def test_ground_is_a_lambertian_floor_of_the_given_albedo() -> None:
 
 def test_sun_below_the_horizon_gives_a_dimmer_bluer_twilight_and_a_dark_night() -> None:
     means = [float((_sky(el, 270, 64) @ LUMA).mean()) for el in (5, 0, -3, -6, -12, -30)]
-    assert all(a > b for a, b in zip(means, means[1:], strict=False))
+    assert all(a > b for a, b in itertools.pairwise(means))
     assert means[-1] > 0  # the night floor, finite and positive
     dusk = _sky(-4, 270, 64)
     np.testing.assert_array_equal(dusk, _sky(-4, 270, 64, sun_disc=False))  # no sun disc

@@ -365,7 +365,7 @@ def cie_overcast_sky(dirs: np.ndarray, sun_elevation_deg: float | int) -> np.nda
     horizon's value.
 
     Example:
-        >>> float(cie_overcast_sky(np.array([0.0, 0.0, 1.0]), 90.0)[1])  # L_z at a zenith sun
+        >>> round(float(cie_overcast_sky(np.array([0.0, 0.0, 1.0]), 90.0)[1]), 4)  # L_z, sun overhead
         8.723
     """
     h_s = math.radians(max(sun_elevation_deg, 0.0))

@@ -32,7 +32,11 @@ def require_astral() -> ModuleType:
 
 
 def parse_place(text: str, argument: str = "place") -> tuple[float, float]:
-    """ "LAT,LON" in decimal degrees (north and east positive) -> (latitude, longitude).
+    """A place "LAT,LON" in decimal degrees (north and east positive) -> (latitude, longitude).
+
+    Args:
+        text: the place, e.g. "48.8584,2.2945".
+        argument: the name messages give the value (the CLI passes "--at").
 
     Raises:
         ParameterError: not two finite numbers, or out of [-90, 90] x [-180, 180].
@@ -62,6 +66,10 @@ def parse_time(text: str, argument: str = "time") -> datetime:
 
     A time without an offset is refused: the sun's position depends on the actual instant, and a
     guessed time zone would move it by up to 15 degrees an hour.
+
+    Args:
+        text: the date and time.
+        argument: the name messages give the value (the CLI passes "--time").
 
     Raises:
         ParameterError: unparseable, or no offset.
