@@ -93,6 +93,21 @@ CASES: list[Case] = [
     _c(E, "procedural-count-negative", "procedural --out-dir proc --count -1"),
     _c(E, "procedural-height-0", "procedural --out-dir proc --height 0"),
     _c(E, "procedural-into-file", "procedural --out-dir {F}/afile --count 1"),
+    # issue 36: a file where a folder is expected and the reverse, inside an output folder too, a
+    # format without its writer or suffix, an output that is an input: refused before any work
+    _c(E, "rotate-dst-folder", f"rotate {CITY} {{F}}/emptydir --w2c {{F}}/w2c.npy", words="`dst`"),
+    _c(E, "rotate-dst-no-suffix", f"rotate {CITY} dst --w2c {{F}}/w2c.npy", words="`dst`"),
+    _c(E, "rotate-dst-png", f"rotate {CITY} dst.png --w2c {{F}}/w2c.npy", words="`dst`"),
+    _c(E, "rotate-dst-is-src", f"rotate {CITY} {CITY} --w2c {{F}}/w2c.npy", words="`src`"),
+    _c(E, "encode-out-dir-file", f"encode {CITY} --w2c {{F}}/w2c.npy --out-dir {{F}}/afile",
+       words="`--out-dir`"),
+    _c(E, "encode-slot-folder", f"encode {CITY} --w2c {{F}}/w2c.npy --out-dir {{F}}/slots",
+       words="ldr.png is a folder"),
+    _c(E, "augment-out-dir-file", f"augment {CITY} --out-dir {{F}}/afile", words="`--out-dir`"),
+    _c(E, "procedural-slot-folder", "procedural --out-dir {F}/slots --count 1 --height 8",
+       words="proc_0000.exr is a folder"),
+    _c(E, "demo-out-file", "demo --out {F}/afile --size 16", words="`--out`"),
+    _c(E, "demo-slot-folder", "demo --out {F}/slots --size 16", words="overview.png is a folder"),
     # --- gaffer-data --------------------------------------------------------------------------
     _c(D, "recipe-empty-out", "recipe ''"),
     _c(D, "recipe-procedural-negative", "recipe rec --procedural -1"),
@@ -113,6 +128,23 @@ CASES: list[Case] = [
        "train-classifier {F}/garbage.json {F}/garbage.json --out clf.json"),
     _c(D, "schema-into-file", "schema --out {F}/afile/schema"),
     _c(D, "schema", "schema --out schema", expect="handle"),
+    _c(D, "recipe-out-file", "recipe {F}/afile --procedural 0", words="`out`"),
+    _c(D, "recipe-slot-file", "recipe {F}/slots --procedural 0", words="objects is a file"),
+    _c(D, "recipe-seed-negative", "recipe rec --procedural 1 --seed -1", words="`--seed`"),
+    _c(D, "render-out-file", "render --objects {F}/emptydir --envmaps {F}/maps --out {F}/afile",
+       words="`--out`"),
+    _c(D, "render-slot-folder", "render --objects {F}/emptydir --envmaps {F}/maps --out {F}/slots",
+       words="dataset.json is a folder"),
+    _c(D, "render-seed-negative",
+       "render --objects {F}/emptydir --envmaps {F}/maps --out ren --seed -1", words="`--seed`"),
+    _c(D, "render-multiview-out-file",
+       "render-multiview --objects {F}/emptydir --envmaps {F}/maps --out {F}/afile", words="`--out`"),
+    _c(D, "schema-out-file", "schema --out {F}/afile", words="`--out`"),
+    _c(D, "filter-out-folder", "filter {F}/emptydir --out {F}/emptydir", words="`--out`"),
+    _c(D, "train-classifier-out-file",
+       "train-classifier {F}/garbage.json {F}/garbage.json --out {F}/afile", words="`--out`"),
+    _c(D, "convert-authors-out-file", "convert-authors {F}/emptydir --out {F}/afile",
+       words="`--out`"),
     # --- gaffer-diffusion ---------------------------------------------------------------------
     _c(G, "relight-missing", f"relight {{F}}/missing.png {LIGHT} --out o.png", words="IMAGE"),
     _c(G, "relight-garbage", f"relight {{F}}/garbage.png {LIGHT} --out o.png"),
@@ -146,6 +178,25 @@ CASES: list[Case] = [
     _c(G, "train-config-garbage", "train --config {F}/garbage.json"),
     _c(G, "prepare-gray16", "prepare {F}/gray16.png --mask {F}/mask.png --out p.png --size 32",
        expect="handle"),
+    _c(G, "relight-out-folder", f"relight {{F}}/good.png {LIGHT} --out {{F}}/emptydir",
+       words="`--out`"),
+    _c(G, "relight-out-is-image", f"relight {{F}}/good.png {LIGHT} --out {{F}}/good.png",
+       words="`IMAGE`"),
+    _c(G, "relight-mask-slot-folder", f"relight {{F}}/good.png {LIGHT} --out {{F}}/slots/o.png",
+       words="o.mask.png is a folder"),
+    _c(G, "relight-frame-slot-folder",
+       f"relight {{F}}/good.png {LIGHT} --out {{F}}/slots/t.png --turntable 2",
+       words="t_000.png is a folder"),
+    _c(G, "prepare-out-folder", "prepare {F}/good.png --out {F}/emptydir", words="`--out`"),
+    _c(G, "prepare-mask-slot-folder", "prepare {F}/good.png --out {F}/slots/q.png",
+       words="q_mask.png is a folder"),
+    _c(G, "normals-out-folder", "normals {F}/good.png --out {F}/emptydir", words="`--out`"),
+    _c(G, "init-random-out-file", "init-random --out {F}/afile", words="`--out`"),
+    _c(G, "init-random-slot-file", "init-random --out {F}/slots", words="unet is a file"),
+    _c(G, "train-output-dir-file", "train --config {F}/train_into_file.json", words="output_dir"),
+    # a photo without a usable alpha: its mask is estimated (the app's GrabCut), not refused
+    _c(G, "prepare-rgb-photo", "prepare {F}/photo.jpg --out p.png --size 32", expect="handle"),
+    _c(G, "prepare-opaque-rgba", "prepare {F}/opaque.png --out p.png --size 32", expect="handle"),
     # --- gaffer-nerf --------------------------------------------------------------------------
     _c(N, "fit-missing", "fit {F}/missing --out fit"),
     _c(N, "fit-empty", "fit {F}/emptydir --out fit"),
@@ -159,6 +210,27 @@ CASES: list[Case] = [
        "relight {F}/field --data {F}/emptydir --envmap {F}/text.exr --out rel"),
     _c(N, "evaluate-json-into-file",
        "evaluate {F}/field --data {F}/emptydir --json {F}/afile/r.json"),
+    _c(N, "fit-out-file", "fit {F}/nerfdata --out {F}/afile", words="`--out`"),
+    _c(N, "fit-slot-folder", "fit {F}/nerfdata --out {F}/slots", words="field.safetensors is a"),
+    _c(N, "relight-out-file",
+       "relight {F}/goodfield --data {F}/nerfdata --target-lighting 0 --out {F}/afile",
+       words="`--out`"),
+    _c(N, "relight-out-is-field",
+       "relight {F}/goodfield --data {F}/nerfdata --target-lighting 0 --out {F}/goodfield",
+       words="is the input `field`"),
+    _c(N, "relight-slot-file",
+       "relight {F}/goodfield --data {F}/nerfdata --target-lighting 0 --out {F}/viewslot",
+       words="relit_views is a file"),
+    _c(N, "render-out-file", "render {F}/goodfield --data {F}/nerfdata --out {F}/afile",
+       words="`--out`"),
+    _c(N, "render-slot-folder", "render {F}/goodfield --data {F}/nerfdata --out {F}/slots",
+       words="000.png is a folder"),
+    _c(N, "evaluate-json-folder",
+       "evaluate {F}/goodfield --data {F}/nerfdata --target-lighting 0 --json {F}/emptydir",
+       words="`--json`"),
+    _c(N, "evaluate-pred-dir-file",
+       "evaluate {F}/goodfield --data {F}/nerfdata --target-lighting 0 --pred-dir {F}/afile",
+       words="`--pred-dir`"),
 ]  # fmt: skip
 
 if not any(Path("/dev").glob("nvidia[0-9]*")):
@@ -213,6 +285,47 @@ def _write_files(folder: Path) -> None:
     (folder / "field").mkdir()
     (folder / "field" / "field.safetensors").write_bytes(b"\x00garbage" * 8)
     (folder / "field" / "field.json").write_text("{not json")
+    _write_output_clashes(folder)
+
+
+def _write_output_clashes(folder: Path) -> None:
+    """Issue 36: `slots/` holds a folder in the place of each file the commands write into an
+    output folder, and a file in the place of each sub-folder; a real field header and a multi-view
+    folder whose checks pass (so the output is what is refused); photos without a usable alpha."""
+    import json
+
+    from PIL import Image
+
+    slots = folder / "slots"
+    for name in ("ldr.png", "proc_0000.exr", "overview.png", "dataset.json", "o.mask.png",
+                 "t_000.png", "q_mask.png", "field.safetensors", "000.png"):  # fmt: skip
+        (slots / name).mkdir(parents=True)
+    for name in ("objects", "unet"):
+        (slots / name).write_text("a file where a folder is expected\n")
+    (folder / "viewslot").mkdir()
+    (folder / "viewslot" / "relit_views").write_text("a file where a folder is expected\n")
+    field = folder / "goodfield"
+    field.mkdir()
+    (field / "config.json").write_text(json.dumps({"_class_name": "TensoRFVM"}))
+    header = json.dumps({"w": {"dtype": "F32", "shape": [1], "data_offsets": [0, 4]}}).encode()
+    (field / "field.safetensors").write_bytes(len(header).to_bytes(8, "little") + header + bytes(4))
+    data = folder / "nerfdata"
+    data.mkdir()
+    meta = {
+        "frames": [{"file_path": "x", "lit": [{"lighting_index": 0, "file_path": "x"}]}],
+        "lightings": [{"lighting_index": 0, "envmap": "a"}],
+    }
+    for split in ("train", "test"):
+        (data / f"transforms_{split}.json").write_text(json.dumps(meta))
+    config = {"output_dir": str(folder / "afile"), "data": {"root": str(folder / "emptydir")}}
+    (folder / "train_into_file.json").write_text(json.dumps(config))
+    yy, xx = np.mgrid[:60, :80]
+    disc = (yy - 30) ** 2 + (xx - 40) ** 2 < 18**2
+    rgb = np.empty((60, 80, 3), np.uint8)
+    rgb[...] = (90, 140, 200)
+    rgb[disc] = (220, 120, 40)
+    Image.fromarray(rgb).save(folder / "photo.jpg", quality=95)
+    Image.fromarray(np.dstack([rgb, np.full((60, 80), 255, np.uint8)])).save(folder / "opaque.png")
 
 
 def _write_exr(path: Path, rgb: np.ndarray) -> None:
