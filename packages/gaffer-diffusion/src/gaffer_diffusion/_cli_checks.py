@@ -104,10 +104,17 @@ def _own_error(check: Callable[[], None]) -> None:
         raise ConfigError(str(exc)) from exc
 
 
-def writable_file(flag: str, path: Path, *, siblings: Iterable[Path] = ()) -> None:
+def writable_file(
+    flag: str,
+    path: Path,
+    *,
+    siblings: Iterable[Path] = (),
+    suffixes: Iterable[str] | None = None,
+) -> None:
     """`path` can be written as a file: not a folder, and its folder exists or can be made, writable;
-    none of `siblings` (files written beside it, e.g. `OUT.mask.png`) is a folder."""
-    _own_error(lambda: check_output_file(flag, path, siblings=siblings))
+    none of `siblings` (files written beside it, e.g. `OUT.mask.png`) is a folder; its suffix is one
+    of `suffixes` (the formats the command writes) when given."""
+    _own_error(lambda: check_output_file(flag, path, siblings=siblings, suffixes=suffixes))
 
 
 def writable_dir(

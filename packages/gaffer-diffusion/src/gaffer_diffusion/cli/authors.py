@@ -23,7 +23,7 @@ def _validate_prepare(args: argparse.Namespace) -> None:
         checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
     # OUT_mask.png (the model's mask) and OUT.mask.png (an estimated one) go beside it (issue 36)
     siblings = [_model_mask_out(args.out), _mask_out(args.out)]
-    checks.writable_file("--out", args.out, siblings=siblings)
+    checks.writable_file("--out", args.out, siblings=siblings, suffixes=(".png",))  # PNGs only
     checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
 
 

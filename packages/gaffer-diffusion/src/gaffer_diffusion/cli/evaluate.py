@@ -31,6 +31,12 @@ def _validate_evaluate(args: argparse.Namespace) -> None:
     for flag, path in (("--json", args.json), ("--markdown", args.markdown)):
         if path is not None:
             checks.writable_file(flag, path)
+    if args.json is not None and args.markdown is not None:
+        if args.json.absolute().resolve() == args.markdown.absolute().resolve():
+            raise ConfigError(
+                f"`--json` and `--markdown` are both {args.json}: one report would replace the "
+                "other; pass two file names."
+            )
     if args.no_perceptual and args.lpips_backbone is not None:
         raise ConfigError("Pass `--lpips-backbone` or `--no-perceptual`, not both.")
     if args.lpips_backbone is not None:
