@@ -1,5 +1,6 @@
 """Physical skies, the ephemeris, the phrase grammar and `gaffer-envmap sky` (issue 32 item 1)."""
 
+import importlib.util
 import itertools
 import math
 import sys
@@ -380,6 +381,11 @@ def test_cli_text_prints_what_it_understood(tmp_path: Path, capsys: pytest.Captu
     assert "softbox at azimuth 270" in capsys.readouterr().out
 
 
+def test_cli_says_when_the_phrase_gave_no_time_of_day(tmp_path: Path, capsys) -> None:
+    assert main(["sky", "--out", str(tmp_path / "s.exr"), "--width", "16", "--text", "hazy"]) == 0
+    assert "no time of day" in capsys.readouterr().out
+
+
 def test_cli_explicit_angles_override_the_phrase(tmp_path: Path, capsys) -> None:
     out = tmp_path / "s.exr"
     argv = ["sky", "--out", str(out), "--width", "32", "--text", "sunset", "--sun-azimuth", "0"]
@@ -467,3 +473,73 @@ def test_cli_refuses_bad_output_paths_before_work(tmp_path: Path, capsys) -> Non
     )
     assert "`--preview`" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+# --------------------------------------------------------------------------- Blender agreement
+
+SKY_WORKER = Path(__file__).parent / "_blender_scripts" / "bpy_sky_worker.py"
+
+
+def _blender_skies(tmp_path: Path, renders: list[dict]) -> list[np.ndarray]:
+    """Bake Blender's Sky Texture to 128 x 64 lat-long maps (bpy in a subprocess, never here)."""
+    import json
+    import subprocess
+
+    import OpenEXR
+
+    for k, item in enumerate(renders):
+        item.update(out=str(tmp_path / f"blender_{k}.exr"), width=128, height=64)
+    job = tmp_path / "job.json"
+    result = tmp_path / "result.json"
+    job.write_text(json.dumps({"threads": 2, "result": str(result), "renders": renders}))
+    proc = subprocess.run(
+        [sys.executable, str(SKY_WORKER), str(job)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    maps = []
+    for item in renders:
+        channels = OpenEXR.File(item["out"], separate_channels=True).channels()
+        maps.append(np.stack([np.asarray(channels[c].pixels, np.float64) for c in "RGB"], -1))
+    return maps
+
+
+@pytest.mark.blender
+@pytest.mark.skipif(
+    importlib.util.find_spec("bpy") is None, reason="needs bpy (gaffer-data[render])"
+)
+def test_sun_direction_and_preetham_sky_agree_with_blenders_sky_texture(tmp_path: Path) -> None:
+    """Blender's `sun_rotation` convention and its Preetham sky, as Cycles draws them, against ours.
+
+    The sun: Blender's multiple-scattering sky with a 6-degree disc, baked by the panoramic camera whose
+    layout is our Blender lat-long (test_blender_agreement.py 1a): its brightest pixel is our
+    `sun_direction(elevation, rotation)`. The sky: Blender's PREETHAM type (given the same sun as a
+    vector) has our `preetham_sky` luminance pattern up to one constant scale, and our colours.
+    """
+    suns = [(30.0, 90.0), (50.0, 37.0), (15.0, 250.0)]
+    preetham = [(30.0, 90.0, 3.0), (10.0, 200.0, 5.0)]
+    renders = [
+        {"sky_type": "MULTIPLE_SCATTERING", "sun_elevation_deg": el, "sun_rotation_deg": az}
+        | {"sun_size_deg": 6.0}
+        for el, az in suns
+    ] + [
+        {"sky_type": "PREETHAM", "sun_elevation_deg": el, "sun_rotation_deg": az, "turbidity": t}
+        for el, az, t in preetham
+    ]
+    maps = _blender_skies(tmp_path, renders)
+    dirs = direction_grid(64, 128)
+    for (el, az), blender in zip(suns, maps[: len(suns)], strict=True):
+        lum = blender @ LUMA
+        i, j = np.unravel_index(int(np.argmax(lum)), lum.shape)
+        assert _angle_deg(dirs[i, j], sun_direction(el, az)) < 2.0, (el, az)  # a pixel is 2.8 deg
+    sky = dirs[..., 2] > 0.05
+    for (el, az, t), blender in zip(preetham, maps[len(suns) :], strict=True):
+        ours = preetham_sky(dirs, sun_direction(el, az), t)[sky]
+        theirs = blender[sky]
+        ratio = (theirs @ LUMA) / (ours @ LUMA)
+        assert ratio.max() / ratio.min() < 1.005, (el, az, t)  # one scale everywhere
+        chroma = np.abs(theirs / ratio[:, None] - ours) / (ours @ LUMA)[:, None]
+        assert chroma.max() < 2e-3, (el, az, t)

@@ -252,6 +252,13 @@ def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig:
                     )
             return reading.scene(exposure_ev=exposure)
     sun = _resolve_sun(args, reading, out)
+    if sun is None and reading is not None and reading.sun_elevation_deg is None:
+        from gaffer_envmap.phrase import DEFAULT_SUN
+
+        out.append(
+            f"note: no time of day in --text: the sun at elevation {DEFAULT_SUN.elevation_deg:g} "
+            f"deg (add a time of day or --sun-elevation)"
+        )
     base = reading.scene(exposure_ev=exposure, sun=sun) if reading is not None else None
     if isinstance(base, SkyConfig):
         model, turbidity, tint, sun = base.model, base.turbidity, base.tint_rgb, base.sun

@@ -48,7 +48,12 @@ from typing import Literal, assert_never, get_args
 import numpy as np
 
 from gaffer_envmap._disc import cap_solid_angle, splat_disc
-from gaffer_envmap.conventions import direction_grid, row_solid_angle
+from gaffer_envmap.conventions import (
+    direction_grid,
+    pixel_center_uv,
+    row_solid_angle,
+    uv_to_direction,
+)
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import ParameterError
 
@@ -450,9 +455,8 @@ def sky_envmap(config: SkyConfig, width: int = 512) -> EnvironmentMap:
         raise ParameterError(f"`width` must be an integer, got {width!r}.")
     if width % 2 or not 8 <= width <= 16384:
         raise ParameterError(f"`width` is {width}; pass an even number in [8, 16384].")
-    height = int(width) // 2
-    dirs = direction_grid(height, int(width))  # [He, We, 3]
-    radiance = _sky_without_sun(dirs, config)  # [He, We, 3] kcd/m^2
+    width = int(width)
+    height = width // 2
     sun_rgb = (
         sun_radiance(config.sun.elevation_deg, config.turbidity)
         if config.model == "preetham"
@@ -466,7 +470,15 @@ def sky_envmap(config: SkyConfig, width: int = 512) -> EnvironmentMap:
     sun_omega = cap_solid_angle(math.radians(SUN_ANGULAR_DIAMETER_DEG / 2.0))
     e_sun = sun_rgb * sun_omega * max(math.sin(math.radians(config.sun.elevation_deg)), 0.0)
     ground = np.asarray(config.ground_albedo) * (e_sky + e_sun) / math.pi
-    radiance = np.where(dirs[..., 2:3] < 0.0, ground, radiance)
+    # the sky in blocks of rows: float64 temporaries of a whole 8192-wide map would need gigabytes
+    radiance = np.empty((height, width, 3), np.float32)
+    u, v = pixel_center_uv(height, width)
+    step = max(1, (1 << 20) // width)
+    for r0 in range(0, height, step):
+        uu, vv = np.meshgrid(u, v[r0 : r0 + step])
+        dirs = uv_to_direction(uu, vv)  # [rows, We, 3]
+        block = np.where(dirs[..., 2:3] < 0.0, ground, _sky_without_sun(dirs, config))
+        radiance[r0 : r0 + step] = block
     if config.sun_disc and sun_rgb.any():
         splat_disc(
             radiance,
@@ -475,9 +487,9 @@ def sky_envmap(config: SkyConfig, width: int = 512) -> EnvironmentMap:
             sun_rgb,
             above_horizon_only=True,
         )
-    radiance *= np.asarray(config.tint_rgb) * 2.0**config.exposure_ev
+    radiance *= (np.asarray(config.tint_rgb) * 2.0**config.exposure_ev).astype(np.float32)
     return EnvironmentMap(
-        radiance_linear=radiance.astype(np.float32),
+        radiance_linear=radiance,
         metadata={
             "gaffer:sky_model": config.model,
             "gaffer:sun_elevation_deg": f"{config.sun.elevation_deg:.4f}",

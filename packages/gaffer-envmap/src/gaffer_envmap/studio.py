@@ -21,7 +21,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from gaffer_envmap._disc import cap_solid_angle, splat_disc
-from gaffer_envmap.conventions import direction_grid
+from gaffer_envmap.conventions import pixel_center_uv
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.errors import ParameterError
 from gaffer_envmap.sky import DEFAULT_EXPOSURE_EV, sun_direction
@@ -189,11 +189,13 @@ def studio_envmap(config: StudioConfig, width: int = 512) -> EnvironmentMap:
         raise ParameterError(f"`width` must be an integer, got {width!r}.")
     if width % 2 or not 8 <= width <= 16384:
         raise ParameterError(f"`width` is {width}; pass an even number in [8, 16384].")
-    height = int(width) // 2
-    z = direction_grid(height, int(width))[..., 2:3]  # [He, We, 1]
+    width = int(width)
+    height = width // 2
+    z = np.cos(np.pi * pixel_center_uv(height, width)[1])  # [He] row heights (z of each row)
     # cyclorama: brightest overhead, half as bright on the floor, smooth through the horizon
     room = config.wall_luminance * (0.75 + 0.25 * np.clip(z * 2.0, -1.0, 1.0))
-    radiance = np.repeat(room, 3, axis=-1)
+    radiance = np.empty((height, width, 3), np.float32)
+    radiance[:] = room[:, None, None]
     for light in config.lights:
         splat_disc(
             radiance,
@@ -201,9 +203,9 @@ def studio_envmap(config: StudioConfig, width: int = 512) -> EnvironmentMap:
             math.radians(light.radius_deg),
             light.luminance * np.asarray(light.tint_rgb),
         )
-    radiance *= np.asarray(config.tint_rgb) * 2.0**config.exposure_ev
+    radiance *= (np.asarray(config.tint_rgb) * 2.0**config.exposure_ev).astype(np.float32)
     return EnvironmentMap(
-        radiance_linear=radiance.astype(np.float32),
+        radiance_linear=radiance,
         metadata={
             "gaffer:studio_lights": "; ".join(light.describe() for light in config.lights),
             "gaffer:exposure_ev": f"{config.exposure_ev:g}",
