@@ -237,10 +237,13 @@ def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig:
 
         reading = read_phrase(args.text)
         if args.strict and reading.unknown:
-            word = reading.unknown[0]
+            words = ", ".join(repr(w) for w in reading.unknown)
             raise GafferEnvmapError(
-                f"`--text` word {word!r} is not in the grammar (--strict); drop it, use a word "
+                f"`--text` word {words} is not in the grammar (--strict); drop it, use a word "
                 "from docs/tutorials/skies.md, or drop --strict to ignore it."
+                if len(reading.unknown) == 1
+                else f"`--text` words {words} are not in the grammar (--strict); drop them, use "
+                "words from docs/tutorials/skies.md, or drop --strict to ignore them."
             )
         out.extend(reading.describe())
         if reading.is_studio:
