@@ -174,3 +174,27 @@ def test_bad_output_paths_are_refused_before_any_work(tmp_path, capsys, argv, wo
     err = capsys.readouterr().err
     assert words.replace("{T}", str(tmp_path)) in err and err.count("\n") == 1, err
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize(
+    ("flags", "missing", "words"),
+    [
+        (["--procedural", "2"], "bpy", "gaffer-data[render]"),
+        (["--procedural", "0", "--pybullet", "2"], "pybullet_data", "pip install pybullet"),
+    ],
+)
+def test_recipe_without_its_builder_writes_nothing(
+    tmp_path, monkeypatch, capsys, flags, missing, words
+):
+    """A missing writer of the procedural objects (bpy, pybullet) is refused before the bundled
+    maps and sample meshes are copied (issue 36: it used to leave a half-written recipe)."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda n, *a: None if n == missing else real(n, *a)
+    )
+    assert main(["recipe", str(tmp_path / "r"), *flags]) == 2
+    err = capsys.readouterr().err
+    assert words in err and err.count("\n") == 1, err
+    assert not (tmp_path / "r").exists()

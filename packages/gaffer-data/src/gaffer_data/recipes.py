@@ -153,6 +153,11 @@ def build_default_recipe(
     Raises:
         MissingDependencyError: bpy is needed for `procedural > 0` and is missing.
     """
+    # what the procedural objects need, checked before anything is written (issue 36)
+    if (procedural > 0 or pybullet > 0) and importlib.util.find_spec("bpy") is None:
+        raise missing_extra("bpy", "render")
+    if pybullet > 0 and importlib.util.find_spec("pybullet_data") is None:
+        raise InputError("`--pybullet` needs pybullet's meshes: `pip install pybullet`.")
     out = Path(out)
     objects, envmaps = out / "objects", out / "envmaps"
     objects.mkdir(parents=True, exist_ok=True)
@@ -173,8 +178,6 @@ def build_default_recipe(
                 if not (folder / f.name).is_file():
                     shutil.copyfile(f, folder / f.name)
     if procedural > 0:
-        if importlib.util.find_spec("bpy") is None:
-            raise missing_extra("bpy", "render")
         # all procedural objects or none (issue 17): built in a hidden staging folder, moved at the end
         with atomic_files(objects / "procedural") as stage:
             cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(stage)]
@@ -183,10 +186,6 @@ def build_default_recipe(
             if result.returncode != 0:
                 raise InputError(f"building procedural objects failed:\n{result.stderr[-2000:]}")
     if pybullet > 0:
-        if importlib.util.find_spec("bpy") is None:
-            raise missing_extra("bpy", "render")
-        if importlib.util.find_spec("pybullet_data") is None:
-            raise InputError("`--pybullet` needs pybullet's meshes: `pip install pybullet`.")
         with atomic_files(objects / "pybullet") as stage:
             cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(stage)]
             cmd += ["--count", str(pybullet), "--seed", str(seed)]
