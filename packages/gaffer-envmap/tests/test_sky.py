@@ -360,6 +360,8 @@ def test_cli_writes_a_sky_that_reads_back(tmp_path: Path, capsys: pytest.Capture
     assert main([*argv, "--width", "64", "--preview", str(preview)]) == 0
     env = read_envmap(out)
     assert env.radiance_linear.shape == (32, 64, 3) and preview.stat().st_size > 0
+    assert env.metadata["gaffer:sky_model"] == "preetham"  # provenance in the EXR header
+    assert float(env.metadata["gaffer:sun_azimuth_deg"]) == 100.0
     lum = env.radiance_linear @ LUMA
     i, j = np.unravel_index(int(np.argmax(lum)), lum.shape)
     u, v = direction_to_uv(sun_direction(20, 100))

@@ -284,7 +284,8 @@ def cmd_sky(args: argparse.Namespace) -> int:
     """Run `gaffer-envmap sky` (arguments from `add_sky_parser`)."""
     lines: list[str] = []
     scene = _plan(args, lines)
-    from gaffer_envmap.io import write_envmap, write_png
+    from gaffer_envmap.io import write_png
+    from gaffer_envmap.io_exr import write_exr
     from gaffer_envmap.studio import studio_envmap
 
     if isinstance(scene, StudioConfig):
@@ -299,7 +300,9 @@ def cmd_sky(args: argparse.Namespace) -> int:
         print(line)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    write_envmap(out, env)
+    # what made the map travels in its header (string attributes; `gaffer-envmap info` reads it back)
+    header = {"gaffer:convention": env.convention, "gaffer:alignment": env.alignment}
+    write_exr(out, env.radiance_linear, attributes={**header, **env.metadata})
     wrote = f"wrote {out} ({env.width}x{env.height}, Blender convention; {scene.describe()})"
     if args.preview is not None:
         from gaffer_envmap.preview import tonemap_preview
