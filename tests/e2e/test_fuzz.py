@@ -63,6 +63,7 @@ def _c(cli: str, id: str, argv: str, **kw) -> Case:
 
 E, D, G, N = "gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf"
 CITY = "{F}/city.exr"
+LONG = "x" * 300  # a file name longer than file systems allow (255 bytes)
 LIGHT = "--envmap city --azimuth 0 --elevation 10"
 
 CASES: list[Case] = [
@@ -108,6 +109,10 @@ CASES: list[Case] = [
        words="proc_0000.exr is a folder"),
     _c(E, "demo-out-file", "demo --out {F}/afile --size 16", words="`--out`"),
     _c(E, "demo-slot-folder", "demo --out {F}/slots --size 16", words="overview.png is a folder"),
+    _c(E, "rotate-dst-name-too-long", f"rotate {CITY} {LONG}.exr --w2c {{F}}/w2c.npy",
+       words="`dst`"),
+    _c(E, "encode-out-dir-is-src", "encode {F}/ldrmap/ldr.png --w2c {F}/w2c.npy --out-dir {F}/ldrmap",
+       words="`src`"),
     # --- gaffer-data --------------------------------------------------------------------------
     _c(D, "recipe-empty-out", "recipe ''"),
     _c(D, "recipe-procedural-negative", "recipe rec --procedural -1"),
@@ -140,6 +145,7 @@ CASES: list[Case] = [
     _c(D, "render-multiview-out-file",
        "render-multiview --objects {F}/emptydir --envmaps {F}/maps --out {F}/afile", words="`--out`"),
     _c(D, "schema-out-file", "schema --out {F}/afile", words="`--out`"),
+    _c(D, "schema-out-name-too-long", f"schema --out new/{LONG}", words="`--out`"),
     _c(D, "filter-out-folder", "filter {F}/emptydir --out {F}/emptydir", words="`--out`"),
     _c(D, "train-classifier-out-file",
        "train-classifier {F}/garbage.json {F}/garbage.json --out {F}/afile", words="`--out`"),
@@ -188,6 +194,12 @@ CASES: list[Case] = [
        f"relight {{F}}/good.png {LIGHT} --out {{F}}/slots/t.png --turntable 2",
        words="t_000.png is a folder"),
     _c(G, "prepare-out-folder", "prepare {F}/good.png --out {F}/emptydir", words="`--out`"),
+    _c(G, "relight-out-name-too-long", f"relight {{F}}/good.png {LIGHT} --out {LONG}.png",
+       words="`--out`"),
+    _c(G, "relight-out-jpg", f"relight {{F}}/good.png {LIGHT} --out o.jpg", words="`--out`"),
+    _c(G, "evaluate-json-is-markdown",
+       "evaluate --pred {F}/emptydir --gt {F}/emptydir --json r.txt --markdown r.txt",
+       words="`--markdown`"),
     _c(G, "prepare-mask-slot-folder", "prepare {F}/good.png --out {F}/slots/q.png",
        words="q_mask.png is a folder"),
     _c(G, "normals-out-folder", "normals {F}/good.png --out {F}/emptydir", words="`--out`"),
@@ -303,6 +315,8 @@ def _write_output_clashes(folder: Path) -> None:
     for name in ("objects", "unet"):
         (slots / name).write_text("a file where a folder is expected\n")
     (folder / "viewslot").mkdir()
+    (folder / "ldrmap").mkdir()
+    Image.fromarray(np.full((8, 16, 3), 128, np.uint8)).save(folder / "ldrmap" / "ldr.png")
     (folder / "viewslot" / "relit_views").write_text("a file where a folder is expected\n")
     field = folder / "goodfield"
     field.mkdir()

@@ -112,6 +112,8 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["relight", str(tmp / "imgs"), *light, "--out", str(tmp / "grid")],
          "is a file where this command writes a folder", None),
         (["relight", str(tmp / "imgs"), *light, "--out", afile], "`--out`", None),
+        (["relight", str(tmp / "imgs"), *light, "--out", str(tmp / "imgs")], "input `IMAGE`",
+         None),
         (["prepare", good, "--out", str(tmp / "prep" / "q.png")], "q_mask.png is a folder", None),
         (["prepare", good, "--out", adir], "`--out`", None),
         (["prepare", good, "--out", good], "is the input `IMAGE`", None),

@@ -1,8 +1,10 @@
 """Nonsense numbers and paths are refused with the argument named (issue 17)."""
 
+import numpy as np
 import pytest
 
 from gaffer_envmap.cli import main
+from gaffer_envmap.io import write_png
 
 
 @pytest.mark.parametrize(
@@ -52,6 +54,9 @@ OUTPUT_CASES = [
     ("rotate {S} {T}/o.png --w2c {W}", "`dst`"),
     ("rotate {S} {T}/o.txt --w2c {W}", "`dst`"),
     ("rotate {S} {S} --w2c {W}", "is the input `src`"),  # would replace the source map
+    ("rotate {S} {T}/" + "x" * 300 + ".exr --w2c {W}", "`dst`"),  # a name too long to write
+    ("rotate {S} {T}/new/" + "x" * 250 + ".exr --w2c {W}", "pass a shorter name"),
+    ("encode {T}/in/ldr.png --w2c {W} --out-dir {T}/in", "is the input `src`"),
     ("encode {S} --w2c {W} --out-dir {T}/afile", "`--out-dir`"),
     ("encode {S} --w2c {W} --out-dir {T}/afile/enc", "`--out-dir`"),
     ("encode {S} --w2c {W} --out-dir {T}/slots", "ldr.png is a folder"),
@@ -67,6 +72,7 @@ OUTPUT_CASES = [
 @pytest.mark.parametrize(("argv", "words"), OUTPUT_CASES)
 def test_bad_output_paths_are_refused_before_any_work(tmp_path, capsys, argv, words) -> None:
     src, w2c = _inputs(tmp_path)
+    write_png(tmp_path / "in" / "ldr.png", np.full((8, 16, 3), 128, np.uint8))  # an LDR map
     cmd = argv.split()[0]
     if "{T}/slots" in argv:
         slot = {

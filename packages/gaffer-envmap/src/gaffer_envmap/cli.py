@@ -156,6 +156,8 @@ def _cmd_rotate(args: argparse.Namespace) -> int:
 
 def _cmd_encode(args: argparse.Namespace) -> int:
     check_output_dir("--out-dir", args.out_dir, files=("ldr.png", "hdr.png"))
+    for name in ("ldr.png", "hdr.png"):  # an LDR source map by that name would be replaced
+        check_not_an_input("--out-dir", Path(args.out_dir) / name, [("src", args.src)])
     env = read_envmap(args.src, sanitize=args.sanitize)
     pose = _load_w2c(args.w2c)
     from gaffer_envmap.encode import encode_lighting  # torch: only once the inputs are good

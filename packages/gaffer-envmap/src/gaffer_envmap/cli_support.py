@@ -11,7 +11,7 @@ import os
 import sys
 import tempfile
 import traceback
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from gaffer_envmap.errors import OutputPathError
@@ -72,9 +72,13 @@ def _can_create_in(folder: Path) -> bool:
         return False
 
 
+_TEMP_NAME_EXTRA = 16
+"""Bytes the atomic writers add to a name for their temporary file (`.NAME.XXXXXXXX.tmp.SUFFIX`)."""
+
+
 def _check_creatable(flag: str, path: Path, shown: Path) -> None:
-    """`path` (a folder, absent or not) can be created and written: its nearest existing ancestor is a
-    writable folder."""
+    """`path` (absent) can be created: its nearest existing ancestor is a writable folder, and no
+    name to be made below it is longer than the file system allows."""
     anc = _nearest_existing(path)
     if not anc.is_dir():
         raise OutputPathError(
@@ -85,6 +89,32 @@ def _check_creatable(flag: str, path: Path, shown: Path) -> None:
             f"`{flag}` {shown} cannot be created: {anc} is not writable; pass a path in a writable "
             "folder."
         )
+    try:
+        name_max = os.pathconf(anc, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # not POSIX, or the file system does not say
+        return
+    limit = name_max - _TEMP_NAME_EXTRA
+    for part in path.absolute().relative_to(anc).parts:
+        if len(os.fsencode(part)) > limit:
+            raise OutputPathError(
+                f"`{flag}` {shown} cannot be created: the name {part[:40]!r}... is "
+                f"{len(os.fsencode(part))} bytes, over the {limit} this file system leaves for it "
+                f"(its limit is {name_max}, and the atomic write names a temporary file after it); "
+                "pass a shorter name."
+            )
+
+
+def _guarded(flag: str, path: object, check: Callable[[], None]) -> None:
+    """Run `check`; an OS error on the way (a name too long to look up, a loop of links) is refused
+    as the argument's error rather than surfacing as a bare `OSError`."""
+    try:
+        check()
+    except OutputPathError:
+        raise
+    except OSError as exc:
+        raise OutputPathError(
+            f"`{flag}` {path} cannot be used: {exc.strerror or exc}; pass another path."
+        ) from exc
 
 
 def check_output_file(
@@ -107,14 +137,22 @@ def check_output_file(
             file, or cannot be created or replaced (permissions); a sibling is a folder. The message
             names `flag` and the fix.
     """
-    p = Path(path)
-    if str(path) in ("", "."):
+    _guarded(flag, path, lambda: _check_output_file(flag, Path(path), suffixes, siblings))
+
+
+def _check_output_file(
+    flag: str,
+    p: Path,
+    suffixes: Iterable[str] | None,
+    siblings: Iterable[str | os.PathLike[str]],
+) -> None:
+    allowed = None if suffixes is None else tuple(suffixes)
+    if str(p) in ("", "."):
         raise OutputPathError(f"`{flag}` is empty; pass an output file name.")
     if p.is_dir():
-        example = p / f"out{next(iter(suffixes), '') if suffixes else ''}"
+        example = p / f"out{allowed[0] if allowed else ''}"
         raise OutputPathError(f"`{flag}` {p} is a folder; pass a file name (e.g. {example}).")
-    if suffixes is not None:
-        allowed = tuple(suffixes)
+    if allowed is not None:
         if p.suffix.lower() not in allowed:
             raise OutputPathError(
                 f"`{flag}` {p} has suffix {p.suffix or '(none)'!r}; pass a {' or '.join(allowed)} file."
@@ -129,7 +167,7 @@ def check_output_file(
         if not os.access(p, os.W_OK) or not os.access(p.absolute().parent, os.W_OK | os.X_OK):
             raise OutputPathError(f"`{flag}` {p} exists and cannot be replaced (permissions).")
         return
-    _check_creatable(flag, p.absolute().parent, p)
+    _check_creatable(flag, p.absolute(), p)
 
 
 def check_output_dir(
@@ -152,9 +190,12 @@ def check_output_dir(
         OutputPathError: the path is empty, a file, under a file, not writable, or one of the
             `files` is a folder or one of the `folders` a file. The message names `flag` and the fix.
     """
-    p = Path(path)
     if str(path) == "":
         raise OutputPathError(f"`{flag}` is empty; pass an output folder.")
+    _guarded(flag, path, lambda: _check_output_dir(flag, Path(path), files, folders))
+
+
+def _check_output_dir(flag: str, p: Path, files: Iterable[str], folders: Iterable[str]) -> None:
     if p.exists() and not p.is_dir():
         raise OutputPathError(
             f"`{flag}` {p} is a file, not a folder; pass a folder (it is created when missing)."

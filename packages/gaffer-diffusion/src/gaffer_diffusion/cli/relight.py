@@ -96,6 +96,7 @@ def _validate_relight(args: argparse.Namespace) -> None:
         checks.writable_dir(
             "--out", args.out, files=[f"{s}.mask.png" for s in stems], folders=stems
         )
+        checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
         return
     width, height = checks.image_size("IMAGE", args.image)
     stem = args.out.with_suffix("")
