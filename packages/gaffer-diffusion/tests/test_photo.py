@@ -422,3 +422,19 @@ def test_cli_normals_estimates_the_mask_of_an_rgb_photo(tmp_path, capsys) -> Non
     assert "has no alpha channel: mask estimated by GrabCut" in capsys.readouterr().out
     assert np.asarray(Image.open(tmp_path / "n.png")).shape == (*disc.shape, 3)
     assert np.asarray(Image.open(tmp_path / "n.mask.png")).shape == disc.shape
+
+
+def test_app_engine_estimates_the_mask_of_an_all_opaque_photo_as_relight_does(tmp_path) -> None:
+    pytest.importorskip("cv2")
+    from gaffer_diffusion.app.config import AppConfig
+    from gaffer_diffusion.app.engine import Engine
+
+    engine = Engine(AppConfig())
+    rgb, disc = _scene(90, 130)
+    opaque, _ = _no_alpha_photo(tmp_path, "opaque-rgba")
+    cut = _save(np.dstack([rgb, disc.astype(np.uint8) * 255]), tmp_path / "cut.png")
+    assert not engine.has_alpha(_save(rgb, tmp_path / "rgb.png")) and not engine.has_alpha(opaque)
+    assert engine.has_alpha(cut)
+    prepared = engine.prepare(engine.model_labels[0], opaque, None)
+    assert prepared.auto_mask and ((prepared.mask > 127) & disc).sum() > 0.8 * disc.sum()
+    assert not engine.prepare(engine.model_labels[0], cut, None).auto_mask

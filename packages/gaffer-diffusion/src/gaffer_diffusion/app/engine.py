@@ -311,11 +311,16 @@ class Engine:
         check_mask(alpha, "The automatic (GrabCut) mask")
         return np.round(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
 
-    @staticmethod
-    def has_alpha(image_path: str | Path) -> bool:
-        """Whether an uploaded image carries transparency (read from its header)."""
+    def has_alpha(self, image_path: str | Path) -> bool:
+        """Whether an uploaded image carries an alpha that marks the object: transparency in its
+        header, and not all opaque (`photo.usable_alpha`: an all-opaque alpha gets the automatic
+        mask, as in `relight`). A photo over `max_image_side` is not decoded (`prepare` refuses it)."""
         with Image.open(image_path) as im:
-            return im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in im.info
+            if not (im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in im.info):
+                return False
+            if max(im.size) > self.config.max_image_side:
+                return True
+        return usable_alpha(read_photo(image_path)) is not None
 
     def prepare(
         self,

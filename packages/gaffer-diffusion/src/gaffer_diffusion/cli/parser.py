@@ -42,15 +42,11 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     r = sub.add_parser("relight", help="relight one object image under an environment map")
-    r.add_argument(
-        "image", type=Path, help="object image (RGBA, or RGB with --mask), or a folder of them"
-    )
+    r.add_argument("image", type=Path, help=f"{_IMAGE_HELP}; or a folder of them")
     r.add_argument(
         "--mask",
         type=_mask_arg,
-        help="object mask (white = object) for images without alpha; a folder of masks with the "
-        "images' file names when IMAGE is a folder; 'auto': a classical GrabCut estimate (offline, "
-        "no weights), written beside the output as OUT.mask.png",
+        help=f"{_MASK_HELP}; a folder of masks with the images' file names when IMAGE is a folder",
     )
     r.add_argument(
         "--sam-checkpoint",
@@ -380,6 +376,20 @@ def _input_lighting(text: str) -> int | str:
         ) from exc
 
 
+_IMAGE_HELP = (
+    "object photo: its alpha is the object mask; without one (RGB, JPEG, or an all-opaque alpha) "
+    "the mask is estimated (GrabCut, as --mask auto) and written beside the output as OUT.mask.png"
+)
+"""The photo argument of `relight`, `normals` and `prepare` (issue 36)."""
+
+_MASK_HELP = (
+    "object mask (white = object), used instead of the photo's alpha; 'auto': a classical GrabCut "
+    "estimate (offline, no weights) even when the photo has an alpha, written beside the output as "
+    "OUT.mask.png"
+)
+"""The `--mask` flag of `relight`, `normals` and `prepare`."""
+
+
 def _mask_arg(text: str) -> Path | str:
     """`--mask`: a path, or 'auto' (GrabCut)."""
     return "auto" if text == "auto" else Path(text)
@@ -401,13 +411,8 @@ def _add_normals_commands(sub: Any) -> None:
         "normals",
         help="estimate camera-frame normals of a photo's object (the geometry gaffer-tiny's hints use)",
     )
-    nm.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
-    nm.add_argument(
-        "--mask",
-        type=_mask_arg,
-        help="object mask (white = object) for an RGB image, or 'auto' (GrabCut, written as "
-        "OUT.mask.png)",
-    )
+    nm.add_argument("image", type=Path, help=_IMAGE_HELP)
+    nm.add_argument("--mask", type=_mask_arg, help=_MASK_HELP)
     nm.add_argument(
         "--out", type=Path, required=True, help="output PNG: RGB = (n + 1) / 2, white outside"
     )
@@ -437,13 +442,8 @@ def _add_authors_commands(sub: Any) -> None:
     pr = sub.add_parser(
         "prepare", help="write the model-ready square input (on white) and its mask, as PNGs"
     )
-    pr.add_argument("image", type=Path, help="object image: RGBA, or RGB with --mask")
-    pr.add_argument(
-        "--mask",
-        type=_mask_arg,
-        help="object mask (white = object) for an RGB image, or 'auto' (GrabCut, written as "
-        "OUT.mask.png)",
-    )
+    pr.add_argument("image", type=Path, help=_IMAGE_HELP)
+    pr.add_argument("--mask", type=_mask_arg, help=_MASK_HELP)
     pr.add_argument("--out", type=Path, required=True, help="output PNG (the mask: OUT_mask.png)")
     pr.add_argument(
         "--compat",

@@ -65,7 +65,7 @@ def _check_turntable_memory(args: argparse.Namespace, width: int, height: int) -
 
 def _validate_relight(args: argparse.Namespace) -> None:
     checks.need_path(
-        "IMAGE", args.image, "an object image (RGBA, or RGB with --mask) or a folder of them"
+        "IMAGE", args.image, "an object photo (its alpha, or --mask, marks the object) or a folder"
     )
     checks.int_range("--turntable", args.turntable, 0, checks.MAX_FRAMES, "e.g. 24")
     checks.finite("--fps", args.fps, 0.0, checks.MAX_FPS, lo_open=True)
