@@ -44,6 +44,7 @@ __all__ = [
     "NormalTrainConfig",
     "angular_errors",
     "load_geometry_views",
+    "mean_angular_error_deg",
     "train_normal_estimator",
     "view_normals_cam",
 ]
@@ -232,7 +233,9 @@ class AngularErrors:
     views: int
 
 
-def _mean_angle(pred: Tensor, truth: Tensor, mask: Tensor) -> float:
+def mean_angular_error_deg(pred: Tensor, truth: Tensor, mask: Tensor) -> float:
+    """Mean angle in degrees between `pred` and `truth` normals over the mask's pixels that have a
+    true normal (the pass is zero where no surface was hit)."""
     valid = (mask > 0.5) & (truth.norm(dim=1, keepdim=True) > 0.5)
     cos = (pred * truth).sum(dim=1, keepdim=True).clamp(-1.0, 1.0)
     return float(torch.rad2deg(torch.acos(cos))[valid].mean())
@@ -250,7 +253,7 @@ def angular_errors(est: NormalEstimator, views: GeometryViews, *, batch: int = 3
         domes.append(silhouette_normals(mask))
     truth, mask = views.normals_cam, views.masks
     return AngularErrors(
-        estimated_deg=_mean_angle(torch.cat(preds), truth, mask),
-        silhouette_dome_deg=_mean_angle(torch.cat(domes), truth, mask),
+        estimated_deg=mean_angular_error_deg(torch.cat(preds), truth, mask),
+        silhouette_dome_deg=mean_angular_error_deg(torch.cat(domes), truth, mask),
         views=int(truth.shape[0]),
     )
