@@ -32,6 +32,7 @@ def _files(tmp: Path) -> dict[str, str]:
     (tmp / "text.exr").write_text("not an EXR")
     (tmp / "adir").mkdir()
     (tmp / "emptydir").mkdir()
+    Image.fromarray(rgba).save(tmp / "q_mask.png")  # a photo named like prepare's second output
     # issue 36: output folders whose slots hold the wrong kind (a folder where a file goes, or the
     # reverse), and a folder of images for the grid mode
     for slot in ("slot/o.mask.png", "spin/t_000.png", "prep/q_mask.png", "nrm/n.mask.png"):
@@ -117,6 +118,8 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["prepare", good, "--out", str(tmp / "prep" / "q.png")], "q_mask.png is a folder", None),
         (["prepare", good, "--out", adir], "`--out`", None),
         (["prepare", good, "--out", good], "is the input `IMAGE`", None),
+        (["prepare", str(tmp / "q_mask.png"), "--out", str(tmp / "q.png")],
+         "q_mask.png is the input `IMAGE`", None),
         (["normals", good, "--out", adir], "`--out`", None),
         (["normals", good, "--out", str(tmp / "nrm" / "n.png")], "n.mask.png is a folder", None),
         (["normals", good, "--out", good], "is the input `IMAGE`", None),

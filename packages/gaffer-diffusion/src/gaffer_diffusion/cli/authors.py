@@ -24,7 +24,8 @@ def _validate_prepare(args: argparse.Namespace) -> None:
     # OUT_mask.png (the model's mask) and OUT.mask.png (an estimated one) go beside it (issue 36)
     siblings = [_model_mask_out(args.out), _mask_out(args.out)]
     checks.writable_file("--out", args.out, siblings=siblings, suffixes=(".png",))  # PNGs only
-    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
+    for written in (args.out, *siblings):  # none of what it writes may replace an input
+        checks.not_an_input("--out", written, [("IMAGE", args.image), ("--mask", args.mask)])
 
 
 def _model_mask_out(out: Path) -> Path:

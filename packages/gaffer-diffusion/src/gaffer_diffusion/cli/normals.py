@@ -25,7 +25,8 @@ def _validate_normals(args: argparse.Namespace) -> None:
     # an estimated mask goes beside it, as OUT.mask.png (issue 36)
     siblings = [] if isinstance(args.mask, Path) else [_mask_out(args.out)]
     checks.writable_file("--out", args.out, siblings=siblings)
-    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
+    for written in (args.out, *siblings):  # none of what it writes may replace an input
+        checks.not_an_input("--out", written, [("IMAGE", args.image), ("--mask", args.mask)])
     if args.out.suffix.lower() != ".png":
         raise checks.ConfigError(f"`--out` is {str(args.out)!r}; expected a .png file.")
 

@@ -105,7 +105,8 @@ def _validate_relight(args: argparse.Namespace) -> None:
         siblings += [stem.with_name(f"{stem.name}_{k:03d}.png") for k in range(args.turntable)]
         siblings += [stem.with_name(f"{stem.name}.{ext}") for ext in ("gif", "mp4")]
     checks.writable_file("--out", args.out, siblings=siblings, suffixes=(".png",))  # PNGs only
-    checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
+    for written in (args.out, *siblings):  # none of what it writes may replace an input
+        checks.not_an_input("--out", written, [("IMAGE", args.image), ("--mask", args.mask)])
     if args.turntable > 1:
         from gaffer_diffusion._video import mp4_encoder
 
