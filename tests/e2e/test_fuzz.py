@@ -209,6 +209,7 @@ CASES: list[Case] = [
     # a photo without a usable alpha: its mask is estimated (the app's GrabCut), not refused
     _c(G, "prepare-rgb-photo", "prepare {F}/photo.jpg --out p.png --size 32", expect="handle"),
     _c(G, "prepare-opaque-rgba", "prepare {F}/opaque.png --out p.png --size 32", expect="handle"),
+    _c(G, "relight-rgb-jpeg", f"relight {{F}}/photo.jpg {LIGHT} --out o.png", expect="handle"),
     # --- gaffer-nerf --------------------------------------------------------------------------
     _c(N, "fit-missing", "fit {F}/missing --out fit"),
     _c(N, "fit-empty", "fit {F}/emptydir --out fit"),
