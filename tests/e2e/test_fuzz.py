@@ -206,6 +206,10 @@ CASES: list[Case] = [
     _c(G, "init-random-out-file", "init-random --out {F}/afile", words="`--out`"),
     _c(G, "init-random-slot-file", "init-random --out {F}/slots", words="unet is a file"),
     _c(G, "train-output-dir-file", "train --config {F}/train_into_file.json", words="output_dir"),
+    _c(G, "train-normals-out-is-data", "train-normals --data {F}/maps --out {F}/maps",
+       words="`--data`"),
+    _c(G, "train-normals-out-not-estimator", "train-normals --data {F}/maps --out {F}/unrelated",
+       words="`--out`"),
     # a photo without a usable alpha: its mask is estimated (the app's GrabCut), not refused
     _c(G, "prepare-rgb-photo", "prepare {F}/photo.jpg --out p.png --size 32", expect="handle"),
     _c(G, "prepare-opaque-rgba", "prepare {F}/opaque.png --out p.png --size 32", expect="handle"),

@@ -124,6 +124,11 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["normals", good, "--out", str(tmp / "nrm" / "n.png")], "n.mask.png is a folder", None),
         (["normals", good, "--out", good], "is the input `IMAGE`", None),
         (["init-random", "--out", afile], "`--out`", None),
+        # train-normals replaces its whole --out folder: not the renders, nor a folder of other files
+        (["train-normals", "--data", adir, "--out", adir], "is or holds `--data`", None),
+        (["train-normals", "--data", adir, "--out", str(tmp)], "is or holds `--data`", None),
+        (["train-normals", "--data", adir, "--out", str(tmp / "imgs")],
+         "not a normal estimator's", None),
         (relight(out=str(tmp / "o.jpg")), "pass a .png file", str(tmp / "o.jpg")),
         (["prepare", good, "--out", str(tmp / "q.webp")], "pass a .png file", str(tmp / "q.webp")),
         (["evaluate", "--pred", adir, "--gt", adir, "--json", str(tmp / "r.txt"), "--markdown",
@@ -203,3 +208,10 @@ def test_train_refuses_an_output_dir_that_is_a_file_before_any_data_loads(tmp_pa
     assert "`--config`" in err and "`output_dir`" in err and "is a file" in err
     assert len(err.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "c.json", "renders"]
+
+
+def test_the_cli_names_the_estimator_folder_mark_as_the_estimator_does() -> None:
+    from gaffer_diffusion.cli.normals import ESTIMATOR_MARK
+    from gaffer_diffusion.geometry.estimator import ESTIMATOR_CONFIG_NAME
+
+    assert ESTIMATOR_MARK == ESTIMATOR_CONFIG_NAME

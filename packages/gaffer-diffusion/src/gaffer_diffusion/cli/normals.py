@@ -14,6 +14,7 @@ from gaffer_diffusion.cli._photo import (
     _photo_and_mask,
     write_with_outputs,
 )
+from gaffer_diffusion.errors import ConfigError
 
 
 def _validate_normals(args: argparse.Namespace) -> None:
@@ -80,11 +81,38 @@ def _normals(args: argparse.Namespace) -> int:
     return 0
 
 
+ESTIMATOR_MARK = "gaffer_normals.json"
+"""`geometry.estimator.ESTIMATOR_CONFIG_NAME`, named here without importing torch (a test keeps the two
+equal): the file that marks an estimator folder."""
+
+
+def _check_replaceable_estimator(args: argparse.Namespace) -> None:
+    """The new estimator replaces the whole `--out` folder (`atomic_dir`): refuse one that holds
+    anything but an earlier estimator, and one that is or holds `--data` / `--val` (issue 36:
+    nothing already written is lost)."""
+    out = args.out.absolute().resolve()
+    for flag, src in (("--data", args.data), ("--val", args.val)):
+        if src is not None and (
+            out == src.absolute().resolve() or out in src.absolute().resolve().parents
+        ):
+            raise ConfigError(
+                f"`--out` {args.out} is or holds `{flag}` {src}, and the estimator replaces the "
+                "whole folder; pass a new folder."
+            )
+    if out.is_dir() and any(out.iterdir()) and not (out / ESTIMATOR_MARK).is_file():
+        raise ConfigError(
+            f"`--out` {args.out} holds files that are not a normal estimator's (no "
+            f"{ESTIMATOR_MARK}), and the estimator replaces the whole folder; pass a new "
+            "folder, or an earlier estimator's to replace it."
+        )
+
+
 def _train_normals(args: argparse.Namespace) -> int:
     checks.need_dir("--data", args.data, "a gaffer-data render folder (with normal passes)")
     if args.val is not None:
         checks.need_dir("--val", args.val, "a gaffer-data render folder (with normal passes)")
     checks.replaceable_dir("--out", args.out)
+    _check_replaceable_estimator(args)
     checks.finite("--minutes", args.minutes, lo=0.1, hi=24 * 60.0)
     checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
     from gaffer_diffusion.cli.train import _training_module
