@@ -7,6 +7,7 @@ Nothing is written on failure: every output goes through an atomic write.
 """
 
 import argparse
+import glob
 import json
 import logging
 import sys
@@ -178,7 +179,9 @@ def _cmd_encode(args: argparse.Namespace) -> int:
 
 
 def _cmd_augment(args: argparse.Namespace) -> int:
-    check_output_dir("--out-dir", args.out_dir, files=(f"{Path(args.src).stem}_*.exr",))
+    check_output_dir(
+        "--out-dir", args.out_dir, files=(f"{glob.escape(Path(args.src).stem)}_*.exr",)
+    )
     env = read_envmap(args.src, sanitize=args.sanitize)
     out = Path(args.out_dir)
     stem = Path(args.src).stem

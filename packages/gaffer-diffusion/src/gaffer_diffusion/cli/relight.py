@@ -4,6 +4,7 @@ folders, batched; its flag checks come first, before torch is imported or weight
 from __future__ import annotations
 
 import argparse
+import glob
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -94,7 +95,7 @@ def _validate_relight(args: argparse.Namespace) -> None:
         )
         stems = [p.stem for p in images]
         checks.writable_dir(
-            "--out", args.out, files=[f"{s}.mask.png" for s in stems], folders=stems
+            "--out", args.out, files=[f"{glob.escape(s)}.mask.png" for s in stems], folders=stems
         )
         checks.not_an_input("--out", args.out, [("IMAGE", args.image), ("--mask", args.mask)])
         return
@@ -173,8 +174,6 @@ def _write_turntable(
     """`STEM_000.png ...`, the animation and an estimated mask, complete or absent (issue 17):
     written to a hidden staging folder, then moved in; an earlier run's frames of this prefix (more of
     them, or the other video format) are removed only then, so no mix of old and new frames is left."""
-    import glob
-
     from gaffer_diffusion._atomic_dir import staged_files
     from gaffer_diffusion._video import write_animation
 
