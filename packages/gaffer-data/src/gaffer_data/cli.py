@@ -21,6 +21,7 @@ from gaffer_envmap.cli_support import (
     check_output_file,
     cli_failure,
     exit_codes_epilog,
+    output_path,
 )
 from gaffer_envmap.errors import GafferEnvmapError
 from gaffer_envmap.sanitize import add_sanitize_argument
@@ -328,7 +329,7 @@ def _add_render_args(r: argparse.ArgumentParser, *, lightings: int) -> None:
     r.add_argument(
         "--out",
         required=True,
-        type=Path,
+        type=output_path,
         help="dataset folder (created; rerun into it to resume, same options only)",
     )
     r.add_argument(
@@ -478,7 +479,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument(
         "src", type=Path, help="mesh folder, or an Objaverse cache (glbs/<group>/<uid>.glb)"
     )
-    f.add_argument("--out", required=True, type=Path, help="output .jsonl manifest")
+    f.add_argument("--out", required=True, type=output_path, help="output .jsonl manifest")
     f.add_argument("--rules", type=Path, default=None, help="rules JSON (see FilterRules)")
     f.add_argument("--classifier", type=Path, default=None, help="trained classifier folder")
     f.add_argument("--workers", type=int, default=1, help="feature-extraction processes")
@@ -511,7 +512,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("features", type=Path, help="a `filter` .jsonl manifest (features)")
     t.add_argument("labels", type=Path, help="CSV with columns object_id,label (1 good, 0 bad)")
     t.add_argument(
-        "--out", required=True, type=Path, help="folder for the trained classifier (created)"
+        "--out", required=True, type=output_path, help="folder for the trained classifier (created)"
     )
     t.add_argument(
         "--folds", type=int, default=5, help="stratified cross-validation folds (default: 5)"
@@ -523,7 +524,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     a.add_argument("src", type=Path, help="a split folder: <split>/<obj>/{VVV}_{LLL}_{env}.png ...")
     a.add_argument(
-        "--out", required=True, type=Path, help="artifact folder (created; rerun to resume)"
+        "--out", required=True, type=output_path, help="artifact folder (created; rerun to resume)"
     )
     a.add_argument(
         "--lighting",
@@ -540,7 +541,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="write JSON Schemas (draft 2020-12) of the rendered and the converted (convert-authors) "
         "manifest.json and dataset.json",
     )
-    s.add_argument("--out", required=True, type=Path, help="folder for the *.schema.json files")
+    s.add_argument(
+        "--out", required=True, type=output_path, help="folder for the *.schema.json files"
+    )
     s.set_defaults(func=_schema)
 
     i = sub.add_parser("info", help="summarise (and optionally verify) a rendered dataset")

@@ -26,6 +26,7 @@ from gaffer_envmap.cli_support import (
     check_output_file,
     cli_failure,
     exit_codes_epilog,
+    output_path,
 )
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.errors import GafferEnvmapError, NonFiniteError
@@ -396,7 +397,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser(
         "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"
     )
-    sp.add_argument("--out", default="out/demo", help="output folder (created; default: out/demo)")
+    sp.add_argument(
+        "--out",
+        type=output_path,
+        default="out/demo",
+        help="output folder (created; default: out/demo)",
+    )
     sp.add_argument(
         "--hdri", default="sunset", help="bundled HDRI name (city, courtyard, forest, ...)"
     )

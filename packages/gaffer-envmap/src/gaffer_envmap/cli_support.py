@@ -253,3 +253,13 @@ def check_not_an_input(
                 f"`{flag}` {out} is the input `{name}`: writing it would replace the input; pass "
                 "another output path."
             )
+
+
+def output_path(text: str) -> Path:
+    """argparse type of an output path: a `Path`, refusing an empty string (`--out "$UNSET"`), which
+    `Path("")` would silently turn into the current folder."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(
+            "is empty; pass an output path (use . for the current folder)"
+        )
+    return Path(text)

@@ -39,7 +39,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaffer_envmap.cli_support import add_debug_argument, cli_failure, exit_codes_epilog
+from gaffer_envmap.cli_support import (
+    add_debug_argument,
+    cli_failure,
+    exit_codes_epilog,
+    output_path,
+)
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.sanitize import add_sanitize_argument, sanitize_flag_refusal
 from gaffer_nerf import preflight
@@ -76,7 +81,7 @@ def _parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="fit a TensoRF field to the input-lighting views")
     f.add_argument("data", type=Path, help="multi-view folder with transforms_train.json")
-    f.add_argument("--out", type=Path, required=True, help="output field folder")
+    f.add_argument("--out", type=output_path, required=True, help="output field folder")
     f.add_argument(
         "--preset",
         choices=("paper", "tiny"),
@@ -131,7 +136,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
     r.add_argument("--diffusion-preset", choices=("tiny",), help="random tiny model (smoke tests)")
-    r.add_argument("--out", type=Path, required=True, help="output folder (relit field + report)")
+    r.add_argument(
+        "--out", type=output_path, required=True, help="output folder (relit field + report)"
+    )
     r.add_argument(
         "--preset",
         choices=("paper", "tiny"),
@@ -218,7 +225,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument(
         "--split", choices=("train", "test"), default="test", help="which cameras (default: test)"
     )
-    d.add_argument("--out", type=Path, required=True, help="folder for the PNGs")
+    d.add_argument("--out", type=output_path, required=True, help="folder for the PNGs")
     d.add_argument(
         "--orbit",
         type=int,
@@ -239,7 +246,7 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument(
         "--split", choices=("train", "test"), default="test", help="views scored (default: test)"
     )
-    e.add_argument("--json", type=Path, help="write the report as JSON")
+    e.add_argument("--json", type=output_path, help="write the report as JSON")
     e.add_argument(
         "--flicker",
         action="store_true",
@@ -247,7 +254,7 @@ def _parser() -> argparse.ArgumentParser:
         "gaffer-data's `--layout orbit`): mean |frame-to-frame change of the renders - that of the "
         "ground truth| in the object mask (gaffer_nerf.flicker)",
     )
-    e.add_argument("--pred-dir", type=Path, help="also write the renders as PNGs here")
+    e.add_argument("--pred-dir", type=output_path, help="also write the renders as PNGs here")
     e.add_argument("--lpips-backbone", type=Path, help="torchvision AlexNet weights (std LPIPS)")
 
     for sp in (f, r, d, e):
