@@ -200,6 +200,8 @@ CASES: list[Case] = [
     _c(G, "prepare-out-folder", "prepare {F}/good.png --out {F}/emptydir", words="`--out`"),
     _c(G, "relight-out-name-too-long", f"relight {{F}}/good.png {LIGHT} --out {LONG}.png",
        words="`--out`"),
+    _c(G, "relight-out-fifo", f"relight {{F}}/good.png {LIGHT} --out {{F}}/fifo.png",
+       words="not a regular file"),
     _c(G, "relight-out-jpg", f"relight {{F}}/good.png {LIGHT} --out o.jpg", words="`--out`"),
     _c(G, "evaluate-json-is-markdown",
        "evaluate --pred {F}/emptydir --gt {F}/emptydir --json r.txt --markdown r.txt",
@@ -233,6 +235,9 @@ CASES: list[Case] = [
        "evaluate {F}/field --data {F}/emptydir --json {F}/afile/r.json"),
     _c(N, "fit-out-file", "fit {F}/nerfdata --out {F}/afile", words="`--out`"),
     _c(N, "fit-out-empty", "fit {F}/nerfdata --out ''", words="argument --out: is empty"),
+    _c(N, "evaluate-json-fifo",
+       "evaluate {F}/goodfield --data {F}/nerfdata --target-lighting 0 --json {F}/fifo.json",
+       words="not a regular file"),
     _c(N, "evaluate-json-empty",
        "evaluate {F}/goodfield --data {F}/nerfdata --target-lighting 0 --json ''",
        words="argument --json: is empty"),
@@ -328,6 +333,8 @@ def _write_output_clashes(folder: Path) -> None:
     for name in ("objects", "unet"):
         (slots / name).write_text("a file where a folder is expected\n")
     (folder / "viewslot").mkdir()
+    os.mkfifo(folder / "fifo.png")  # not a regular file: a rename over it would replace the node
+    os.mkfifo(folder / "fifo.json")
     (folder / "ldrmap").mkdir()
     Image.fromarray(np.full((8, 16, 3), 128, np.uint8)).save(folder / "ldrmap" / "ldr.png")
     (folder / "viewslot" / "relit_views").write_text("a file where a folder is expected\n")

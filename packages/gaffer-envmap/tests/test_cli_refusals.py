@@ -1,5 +1,7 @@
 """Nonsense numbers and paths are refused with the argument named (issue 17)."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -54,6 +56,7 @@ OUTPUT_CASES = [
     ("rotate {S} {T}/o.png --w2c {W}", "`dst`"),
     ("rotate {S} {T}/o.txt --w2c {W}", "`dst`"),
     ("rotate {S} {S} --w2c {W}", "is the input `src`"),  # would replace the source map
+    ("rotate {S} {T}/fifo.exr --w2c {W}", "not a regular file"),  # renaming over it replaces it
     ("rotate {S} {T}/" + "x" * 300 + ".exr --w2c {W}", "`dst`"),  # a name too long to write
     ("rotate {S} {T}/new/" + "x" * 250 + ".exr --w2c {W}", "pass a shorter name"),
     ("encode {T}/in/ldr.png --w2c {W} --out-dir {T}/in", "is the input `src`"),
@@ -73,6 +76,7 @@ OUTPUT_CASES = [
 def test_bad_output_paths_are_refused_before_any_work(tmp_path, capsys, argv, words) -> None:
     src, w2c = _inputs(tmp_path)
     write_png(tmp_path / "in" / "ldr.png", np.full((8, 16, 3), 128, np.uint8))  # an LDR map
+    os.mkfifo(tmp_path / "fifo.exr")
     cmd = argv.split()[0]
     if "{T}/slots" in argv:
         slot = {

@@ -164,6 +164,10 @@ def _check_output_file(
                 "output; move it away or pass another output name."
             )
     if p.exists():
+        if not p.is_file():  # a device, FIFO or socket: the atomic rename would replace the node
+            raise OutputPathError(
+                f"`{flag}` {p} is not a regular file (a device, pipe or socket); pass a file path."
+            )
         if not os.access(p, os.W_OK) or not os.access(p.absolute().parent, os.W_OK | os.X_OK):
             raise OutputPathError(f"`{flag}` {p} exists and cannot be replaced (permissions).")
         return
