@@ -54,3 +54,29 @@ def test_another_class_is_refused_first(tmp_path: Path) -> None:
     _, folder = _saved(tmp_path / "f", _class_name="Other", format_version="2.0")
     with pytest.raises(CheckpointError, match=r"`_class_name`='Other', expected 'TensoRFVM'"):
         load_field(folder)
+
+
+def test_a_failed_save_leaves_the_earlier_field_and_report(tmp_path: Path, monkeypatch) -> None:
+    """Issue 36: weights, config and report are one set, moved in together or not at all."""
+    import gaffer_nerf.checkpoint as checkpoint
+
+    field, folder = _saved(tmp_path / "f")
+    (folder / "fit_report.json").write_text("{}")
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+
+    def half_then_fail(state, path):
+        Path(path).write_bytes(b"half a file")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(checkpoint, "save_file", half_then_fail)
+    with pytest.raises(OSError):
+        save_field(field, folder, extra={"fit_report.json": '{"new": 1}'})
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == before
+    monkeypatch.undo()
+    save_field(field, folder, extra={"fit_report.json": '{"new": 1}'})
+    assert json.loads((folder / "fit_report.json").read_text()) == {"new": 1}
+    assert sorted(p.name for p in folder.iterdir()) == [
+        CONFIG_NAME,
+        "field.safetensors",
+        "fit_report.json",
+    ]

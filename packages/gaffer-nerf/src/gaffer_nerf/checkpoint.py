@@ -6,12 +6,14 @@ field is rebuilt at its final shape before loading (strictly).
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 from safetensors.torch import load_file, save_file
 
+from gaffer_envmap.atomic import atomic_files
 from gaffer_envmap.schema_header import schema_header_problem
 from gaffer_nerf._version import __version__
 from gaffer_nerf.configs import SceneBoxConfig, TensoRFConfig
@@ -24,14 +26,26 @@ CLASS_NAME = "TensoRFVM"
 FORMAT_VERSION = "1.0"
 
 
-def save_field(field: TensoRFVM, folder: str | Path) -> Path:
-    """Write `folder/config.json` and `folder/field.safetensors`; returns the folder."""
+def save_field(
+    field: TensoRFVM, folder: str | Path, *, extra: Mapping[str, str] | None = None
+) -> Path:
+    """Write `folder/config.json`, `folder/field.safetensors` and the `extra` text files (name ->
+    contents, e.g. the fit's report) as one set: staged, then moved in together
+    (`gaffer_envmap.atomic.atomic_files`), so a failed or killed save leaves the folder as it was,
+    never new weights beside an old config (issue 36). Returns the folder."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous() for k, v in field.state_dict().items()}
     if field.alpha_volume is not None and field.alpha_aabb is not None:
         state["alpha_volume"] = field.alpha_volume.detach().cpu().contiguous()
         state["alpha_aabb"] = field.alpha_aabb.detach().cpu().contiguous()
+    with atomic_files(folder) as stage:
+        _write_field(stage, field, state)
+        for name, text in (extra or {}).items():
+            (stage / name).write_text(text)
+    return folder
+
+
+def _write_field(folder: Path, field: TensoRFVM, state: dict[str, torch.Tensor]) -> None:
     save_file(state, str(folder / WEIGHTS_NAME))
     meta = {
         "_class_name": CLASS_NAME,
@@ -42,7 +56,6 @@ def save_field(field: TensoRFVM, folder: str | Path) -> Path:
         "grid_size": list(field.grid_size),
     }
     (folder / CONFIG_NAME).write_text(json.dumps(meta, indent=2))
-    return folder
 
 
 def load_field(folder: str | Path, *, device: str | torch.device = "cpu") -> TensoRFVM:

@@ -322,8 +322,9 @@ def _fit(args: argparse.Namespace) -> int:
     res = fit_tensorf(
         scene.train, cfg, heldout=heldout, device=device, progress=not args.no_progress
     )
-    save_field(res.field, args.out)
-    (args.out / "fit_report.json").write_text(json.dumps(_jsonable(res.report), indent=2))
+    # the field and its report: all three files or none (issue 36)
+    report = json.dumps(_jsonable(res.report), indent=2)
+    save_field(res.field, args.out, extra={"fit_report.json": report})
     rep = res.report
     print(
         f"fit: {rep.iterations_run} iterations in {rep.seconds:.1f} s, grid "
@@ -544,19 +545,17 @@ def _relight(args: argparse.Namespace) -> int:
     res = relight_field(
         field, scene.train, env, guide, cfg, perceptual, progress=not args.no_progress
     )
-    save_field(res.field, args.out)
-    (args.out / "relight_report.json").write_text(
-        json.dumps(
-            _jsonable(
-                {
-                    "config": dataclasses.replace(cfg, diffusion=guide.sampling),
-                    "model": {"name": loaded.name, "source": str(loaded.source)},
-                    "report": res.report,
-                }
-            ),
-            indent=2,
-        )
+    report = json.dumps(
+        _jsonable(
+            {
+                "config": dataclasses.replace(cfg, diffusion=guide.sampling),
+                "model": {"name": loaded.name, "source": str(loaded.source)},
+                "report": res.report,
+            }
+        ),
+        indent=2,
     )
+    save_field(res.field, args.out, extra={"relight_report.json": report})  # all or none
     if res.relit_views is not None:
         names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
         write_images(res.relit_views, args.out / "relit_views", names)
