@@ -101,7 +101,7 @@ def _check_render_args(args: argparse.Namespace) -> None:
     check_output_dir(
         "--out",
         args.out,
-        files=("dataset.json", "_plan.json", "failures.jsonl"),
+        files=("dataset.json", "failures.jsonl"),
         folders=("objects",),
     )
 
