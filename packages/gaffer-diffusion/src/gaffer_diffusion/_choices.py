@@ -18,6 +18,12 @@ DetailMode = Literal["transfer", "resize"]
 Background = Literal["input", "envmap"]
 """Around the object: the photo's own pixels, or the target environment as the camera sees it."""
 
+ShadowMode = Literal["2d", "cycles", "none"]
+"""`gaffer-diffusion insert --shadow`: a pixel-height shadow cast on the ground plane from the mask
+(`2d`), Blender's shadow catcher (`cycles`, not built yet), or none."""
+
+SHADOW_MODES: tuple[ShadowMode, ...] = ("2d", "cycles", "none")
+
 BACKDROP_FOV_DEG = 39.6
 """Horizontal field of view of the `--background envmap` camera: Blender's default 50 mm lens on 36 mm."""
 

@@ -294,26 +294,30 @@ def _resample(
     return out[0].permute(1, 2, 0).numpy()
 
 
-def paste_back(
-    prepared: PreparedPhoto,
-    relit: Float[Tensor, "3 S S"],
-    *,
-    detail: DetailMode = "transfer",
-    backdrop: np.ndarray | None = None,
-) -> np.ndarray:
-    """The relit object at the photo's size, composited into the photo at its place.
+@dataclass(frozen=True, kw_only=True)
+class RelitObject:
+    """The relit object at the photo's resolution, inside a box around its mask.
 
-    Args:
-        prepared: the photo, its mask and the model's input (`prepare_photo`).
-        relit: the model's `[3, S, S]` prediction for `prepared.model_input`, sRGB in [0, 1].
-        detail: "transfer" (the model's shading change applied to the full-resolution photo) or "resize"
-            (the model's output upsampled bicubically).
-        backdrop: `[H, W, 3]` float sRGB to composite the object over instead of the photo
-            (`envmap_backdrop`), or None to keep the photo's pixels.
+    Attributes:
+        box: `(top, left, bottom, right)` of the box in photo pixels (the mask's bounding box, padded).
+        rgb: `[bottom - top, right - left, 3]` float32 sRGB in [0, 1]: the relit pixels of the box.
+        alpha: `[bottom - top, right - left]` float32 object mask in [0, 1] over the box.
+    """
 
-    Returns:
-        `[H, W, 3]` uint8 (or `[H, W, 4]` when the photo has alpha, which is kept). Without a backdrop,
-        every pixel where the mask is 0 holds the input's bytes.
+    box: tuple[int, int, int, int]
+    rgb: np.ndarray
+    alpha: np.ndarray
+
+
+def relit_object(
+    prepared: PreparedPhoto, relit: Float[Tensor, "3 S S"], *, detail: DetailMode = "transfer"
+) -> RelitObject:
+    """The model's result for `prepared` brought to the photo's resolution, over the object's box.
+
+    `detail="transfer"` applies the model's change of shading to the full-resolution photo
+    (`gaffer_diffusion.detail_transfer`); `"resize"` upsamples the model's output bicubically. Shared by
+    `paste_back` (the photo relit in place) and `gaffer_diffusion.insert` (the object moved into another
+    picture).
     """
     photo, alpha, framing = prepared.photo, prepared.alpha, prepared.framing
     s = framing.size
@@ -335,10 +339,37 @@ def paste_back(
             obj = np.clip(_resample(relit_np, framing, box, "bicubic"), 0.0, 1.0)
         case _:
             assert_never(detail)
+    return RelitObject(box=box, rgb=obj.astype(np.float32), alpha=alpha[t:b, l:r])
+
+
+def paste_back(
+    prepared: PreparedPhoto,
+    relit: Float[Tensor, "3 S S"],
+    *,
+    detail: DetailMode = "transfer",
+    backdrop: np.ndarray | None = None,
+) -> np.ndarray:
+    """The relit object at the photo's size, composited into the photo at its place.
+
+    Args:
+        prepared: the photo, its mask and the model's input (`prepare_photo`).
+        relit: the model's `[3, S, S]` prediction for `prepared.model_input`, sRGB in [0, 1].
+        detail: "transfer" (the model's shading change applied to the full-resolution photo) or "resize"
+            (the model's output upsampled bicubically); see `relit_object`.
+        backdrop: `[H, W, 3]` float sRGB to composite the object over instead of the photo
+            (`envmap_backdrop`), or None to keep the photo's pixels.
+
+    Returns:
+        `[H, W, 3]` uint8 (or `[H, W, 4]` when the photo has alpha, which is kept). Without a backdrop,
+        every pixel where the mask is 0 holds the input's bytes.
+    """
+    photo, alpha = prepared.photo, prepared.alpha
+    obj = relit_object(prepared, relit, detail=detail)
+    t, l, b, r = obj.box
     base = photo.rgb if backdrop is None else np.asarray(backdrop, np.float32)
-    a = alpha[t:b, l:r, None]
+    a = obj.alpha[..., None]
     out_f = base.copy()
-    out_f[t:b, l:r] = a * obj + (1.0 - a) * base[t:b, l:r]
+    out_f[t:b, l:r] = a * obj.rgb + (1.0 - a) * base[t:b, l:r]
     out = np.round(np.clip(out_f, 0, 1) * 255).astype(np.uint8)
     if backdrop is None:
         keep = alpha <= 0.0  # outside the mask: the input's bytes, exactly

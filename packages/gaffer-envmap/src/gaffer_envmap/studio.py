@@ -31,6 +31,7 @@ __all__ = [
     "LightKind",
     "StudioConfig",
     "StudioLight",
+    "add_disc_light",
     "default_light",
     "light_irradiance",
     "studio_envmap",
@@ -217,3 +218,50 @@ def studio_envmap(config: StudioConfig, width: int = 512) -> EnvironmentMap:
 def light_irradiance(light: StudioLight) -> float:
     """Illuminance (klx) the light gives a surface facing it: `luminance * Omega_disc`."""
     return light.luminance * cap_solid_angle(math.radians(light.radius_deg))
+
+
+def add_disc_light(
+    env: EnvironmentMap,
+    direction: np.ndarray,
+    radius_deg: float,
+    irradiance_rgb: np.ndarray | tuple[float, float, float],
+) -> EnvironmentMap:
+    """A copy of a Blender-convention map with a uniform disc of light added, power-exactly.
+
+    The disc's radiance is `irradiance / Omega_disc`, so a surface facing it receives exactly
+    `irradiance_rgb` from it (in the map's units), however few pixels the disc covers
+    (`gaffer_envmap._disc`). Used for a key light added to an estimated map
+    (`gaffer-diffusion insert --key-light`).
+
+    Args:
+        env: the map (Blender convention, centre-aligned).
+        direction: `[3]` direction towards the light's centre, world z up (e.g. `sun_direction`).
+        radius_deg: angular radius of the disc, degrees, in (0, 90].
+        irradiance_rgb: `[3]` irradiance at normal incidence, >= 0.
+
+    Raises:
+        ParameterError: another convention or alignment, a bad radius, direction or irradiance.
+
+    Example:
+        >>> env = EnvironmentMap(radiance_linear=np.zeros((32, 64, 3), np.float32))
+        >>> lit = add_disc_light(env, np.array([0.0, 0.0, 1.0]), 5.0, (2.0, 2.0, 2.0))
+        >>> from gaffer_envmap.stats import total_power
+        >>> round(float(total_power(lit)[0]), 4)
+        2.0
+    """
+    if env.convention != "blender" or env.alignment != "center":
+        raise ParameterError(
+            f"`env` is {env.convention!r}/{env.alignment!r}; pass a centre-aligned Blender map."
+        )
+    d = np.asarray(direction, np.float64)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+        raise ParameterError(f"`direction` must be a finite non-zero [3] vector, got {d.tolist()}.")
+    if not (math.isfinite(radius_deg) and 0.0 < radius_deg <= 90.0):
+        raise ParameterError(f"`radius_deg` is {radius_deg}; pass degrees in (0, 90].")
+    e = np.asarray(irradiance_rgb, np.float64)
+    if e.shape != (3,) or not np.all(np.isfinite(e)) or (e < 0).any():
+        raise ParameterError(f"`irradiance_rgb` must be 3 finite values >= 0, got {e.tolist()}.")
+    radiance = np.array(env.radiance_linear, np.float64)
+    radius = math.radians(radius_deg)
+    splat_disc(radiance, d / np.linalg.norm(d), radius, e / cap_solid_angle(radius))
+    return env.with_radiance(radiance.astype(np.float32))

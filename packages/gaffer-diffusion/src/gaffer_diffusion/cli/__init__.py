@@ -9,6 +9,9 @@
     gaffer-diffusion relight IMAGE --ldr LDR.png --hdr HDR.png --checkpoint CKPT ... (pre-encoded maps)
     gaffer-diffusion relight IMAGES_DIR --envmaps ENVMAPS_DIR (--w2c | --azimuth --elevation)
         --checkpoint CKPT --out OUT_DIR   (every image x every map, batched; OUT_DIR/<image>/<map>.png)
+    gaffer-diffusion insert OBJECT --into BACKGROUND --out OUT.png [--at X,Y] [--height H]
+        [--envmap ENV.exr [--w2c W2C.npy] | --light-from-photo --key-light AZ,EL] [--shadow 2d|none]
+        (the object relit under the background's lighting, placed, with a cast shadow)
     gaffer-diffusion evaluate --dataset DIR --checkpoint CKPT [--base-model DIR] [--envmaps DIR]
         [--steps 50] [--limit N] [--json F] [--markdown F]   (a gaffer-data rendered dataset)
     gaffer-diffusion evaluate --pred DIR --gt DIR [--mask-dir DIR] [--lpips-backbone FILE] [--json F]
@@ -54,6 +57,7 @@ from gaffer_diffusion.cli._photo import _check_photo_flags as _check_photo_flags
 from gaffer_diffusion.cli.authors import _check, _prepare
 from gaffer_diffusion.cli.demo import _demo
 from gaffer_diffusion.cli.evaluate import _evaluate
+from gaffer_diffusion.cli.insert import _insert
 from gaffer_diffusion.cli.normals import _normals, _train_normals
 from gaffer_diffusion.cli.parser import _parser
 from gaffer_diffusion.cli.relight import _relight
@@ -74,6 +78,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return _demo(args)
             case "relight":
                 return _relight(args)
+            case "insert":
+                return _insert(args)
             case "evaluate":
                 return _evaluate(args)
             case "init-random":

@@ -17,8 +17,10 @@ from gaffer_diffusion._choices import (
     LatentMode,
     OutputSize,
     PrepareCompat,
+    ShadowMode,
 )
 from gaffer_diffusion.app.config import add_app_arguments
+from gaffer_diffusion.cli.insert import parse_key_light, parse_xy
 from gaffer_envmap.cli_support import add_debug_argument, exit_codes_epilog
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.sanitize import add_sanitize_argument
@@ -268,6 +270,7 @@ def _parser() -> argparse.ArgumentParser:
         d, what="the --example's maps (the bundled HDRIs are read as gaffer-envmap ships them): "
     )
 
+    _add_insert_command(sub)
     _add_authors_commands(sub)
     _add_normals_commands(sub)
 
@@ -463,3 +466,95 @@ def _add_authors_commands(sub: Any) -> None:
     ck.add_argument(
         "--base-model", type=Path, required=True, help="Zero-1-to-3 XL diffusers folder"
     )
+
+
+def _add_insert_command(sub: Any) -> None:
+    """`insert` (issue 32): an object photo relit and placed into a background photo, with a shadow."""
+    n = sub.add_parser(
+        "insert",
+        help="relight an object photo under a background's lighting and paste it in, with a shadow",
+    )
+    n.add_argument("object", type=Path, metavar="OBJECT", help=_IMAGE_HELP)
+    n.add_argument("--into", type=Path, required=True, help="the background photo (PNG/JPEG/WebP)")
+    n.add_argument("--out", type=Path, required=True, help="output PNG, the background's size")
+    n.add_argument("--mask", type=_mask_arg, help=_MASK_HELP)
+    n.add_argument(
+        "--at",
+        type=parse_xy,
+        metavar="X,Y",
+        help="background pixel (column,row from the top-left) of the object's lowest centre point "
+        "(default: the centre of the bottom third of the frame)",
+    )
+    n.add_argument(
+        "--height",
+        type=float,
+        help="the object's height in background pixels (default: its height in OBJECT)",
+    )
+    n.add_argument(
+        "--fov",
+        type=float,
+        default=BACKDROP_FOV_DEG,
+        help=f"the background's horizontal field of view, degrees (default {BACKDROP_FOV_DEG})",
+    )
+    light = n.add_argument_group(
+        "lighting: --envmap (with the background camera's --w2c) or --light-from-photo (default)"
+    )
+    light.add_argument(
+        "--envmap",
+        type=_envmap_path,
+        help="the background's HDR map (.exr/.hdr, Blender z-up) or a bundled HDRI's name",
+    )
+    light.add_argument(
+        "--w2c",
+        type=Path,
+        help="the background camera's 3x4/4x4 Blender world-to-camera .npy (default: level, "
+        "looking along world +y)",
+    )
+    light.add_argument(
+        "--light-from-photo",
+        action="store_true",
+        help="build the map from the background (the default without --envmap): the photo wrapped "
+        "onto the sphere at --fov, the rest a blurred mirrored extension, expanded to HDR; its key "
+        "light is mostly outside the frame, so give it with --key-light",
+    )
+    light.add_argument(
+        "--key-light",
+        type=parse_key_light,
+        metavar="AZ,EL[,STRENGTH[,SIZE_DEG]]",
+        help="a key light added to the map from the photo as a disc of exact power: azimuth degrees "
+        "clockwise from world +y seen from above (default camera: 0 straight ahead, behind the "
+        "object; 90 from the right; 180 from behind the camera), elevation degrees; STRENGTH its "
+        "irradiance in multiples of the photo's mean light (default 3), SIZE_DEG its angular "
+        "diameter (default 5). Give it: the photo rarely shows its key light",
+    )
+    light.add_argument(
+        "--save-envmap", type=Path, help="write the lighting used here (.exr, Blender convention)"
+    )
+    light.add_argument(
+        "--compat",
+        choices=COMPAT_MODES,
+        default=None,
+        help="lighting encoding (default: the model's own; gaffer-tiny: 'default')",
+    )
+    add_sanitize_argument(light)
+    n.add_argument(
+        "--shadow",
+        choices=get_args(ShadowMode),
+        default="2d",
+        help="'2d' (default): a pixel-height soft shadow cast on the ground from the mask, away "
+        "from the dominant light; 'none'; 'cycles' (Blender's shadow catcher) is not built yet",
+    )
+    n.add_argument(
+        "--detail",
+        choices=get_args(DetailMode),
+        default="transfer",
+        help="'transfer' (default): the model's change of shading applied to the full-resolution "
+        "object photo; 'resize': the model's output upsampled",
+    )
+    n.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="our model folder or checkpoint-80000/ (default: gaffer-tiny, shipped, 128 px)",
+    )
+    n.add_argument("--base-model", type=Path, help="Zero-1-to-3 XL folder (authors' checkpoint)")
+    _add_sampling_args(n)

@@ -1,0 +1,250 @@
+"""`gaffer-diffusion insert OBJECT --into BACKGROUND --out OUT.png` (issue 32): the object photo
+relit under the background's lighting, placed, shadowed and composited (`gaffer_diffusion.insert`).
+Every flag and file is checked, and both photos read, before torch is imported or weights load."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from gaffer_diffusion import _cli_checks as checks
+from gaffer_diffusion.cli._common import (
+    _compat,
+    _device,
+    _load_model,
+    _runtime,
+    _sampling,
+    _save_png,
+)
+from gaffer_diffusion.cli._flag_checks import _check_model_args, _check_sampling_args
+from gaffer_diffusion.cli._lighting import _check_envmap_arg, _read_envmap, _read_w2c
+from gaffer_diffusion.cli._photo import (
+    PhotoMask,
+    _check_photo_flags,
+    _mask_out,
+    _photo_and_mask,
+    write_with_outputs,
+)
+from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
+
+if TYPE_CHECKING:
+    from gaffer_diffusion.insert_geometry import InsertLighting, KeyLight, Placement
+    from gaffer_diffusion.photo import Photo
+
+
+def parse_xy(text: str) -> tuple[float, float]:
+    """`--at X,Y`: two numbers (argparse type)."""
+    parts = text.split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        x, y = (float(p) for p in parts)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not X,Y (two numbers: the pixel column and row, e.g. 320,400)"
+        ) from exc
+    return x, y
+
+
+def parse_key_light(text: str) -> tuple[float, ...]:
+    """`--key-light AZ,EL[,STRENGTH[,SIZE_DEG]]`: two to four numbers (argparse type)."""
+    parts = text.split(",")
+    try:
+        if not 2 <= len(parts) <= 4:
+            raise ValueError
+        return tuple(float(p) for p in parts)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not AZ,EL[,STRENGTH[,SIZE_DEG]] (2 to 4 numbers, e.g. 135,40 or 135,40,3,5)"
+        ) from exc
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Checked:
+    """What the checks read: the background's size, the map of `--envmap` and the key light."""
+
+    background_wh: tuple[int, int]
+    envmap: Any  # gaffer_envmap.EnvironmentMap | None
+    w2c: Any  # gaffer_envmap.poses.W2CBlender
+    key_light: KeyLight | None
+
+
+def _key_light(args: argparse.Namespace) -> KeyLight | None:
+    if args.key_light is None:
+        return None
+    from gaffer_diffusion.insert_geometry import KeyLight
+
+    return KeyLight(**dict(zip(("azimuth_deg", "elevation_deg", "strength", "size_deg"), args.key_light, strict=False)))  # fmt: skip
+
+
+def _check_shadow(mode: str) -> None:
+    if mode != "cycles":
+        return
+    if importlib.util.find_spec("bpy") is None:
+        raise MissingDependencyError(
+            "`--shadow cycles` needs Blender's Python module bpy (pip install "
+            '"gaffer-data[render]"), which is not installed; use `--shadow 2d` (the pixel-height '
+            "shadow, the default)."
+        )
+    raise ConfigError(
+        "`--shadow cycles` (Blender's shadow catcher with a proxy from the mask) is not built yet "
+        "(issue 32); use `--shadow 2d` (the pixel-height shadow, the default)."
+    )
+
+
+def _validate_insert(args: argparse.Namespace) -> _Checked:
+    """Every flag and file, before torch is imported or a model loads; one line per refusal."""
+    from gaffer_envmap.poses import W2CBlender
+
+    ow, oh = checks.image_size("OBJECT", args.object)
+    bw, bh = checks.image_size("--into", args.into)
+    if isinstance(args.mask, Path):
+        mw, mh = checks.image_size("--mask", args.mask)
+        if (mw, mh) != (ow, oh):
+            raise InputValueError(
+                f"`--mask` {args.mask} is {mw}x{mh} but OBJECT {args.object} is {ow}x{oh} (width x "
+                "height); pass the object photo's mask, of its size (white = object), or "
+                "`--mask auto`."
+            )
+    _check_photo_flags(args)
+    checks.finite("--fov", args.fov, 1.0, 179.0)
+    if args.height is not None:
+        checks.finite("--height", args.height, 0.0, lo_open=True)
+    if args.at is not None:
+        x, y = args.at
+        if not (math.isfinite(x) and math.isfinite(y) and 0 <= x < bw and 0 <= y < bh):
+            raise InputValueError(
+                f"`--at` {x:g},{y:g} is outside the background ({bw}x{bh}): pass X in "
+                f"[0, {bw - 1}] and Y in [0, {bh - 1}], pixels from the top-left."
+            )
+    _check_shadow(args.shadow)
+    if args.envmap is not None and args.light_from_photo:
+        raise ConfigError(
+            "Pass `--envmap` (a map you have) or `--light-from-photo` (the map built from the "
+            "background), not both."
+        )
+    if args.envmap is not None and args.key_light is not None:
+        raise ConfigError(
+            "`--key-light` adds a key light to the map built from the background "
+            "(`--light-from-photo`); an `--envmap` brings its own light. Drop one of them."
+        )
+    envmap = None
+    if args.envmap is not None:
+        _check_envmap_arg(args.envmap)
+        envmap = _read_envmap(args, args.envmap)  # decoded now: an unreadable map fails here
+    w2c = W2CBlender.from_array(_read_w2c(args.w2c)) if args.w2c is not None else None
+    key = _key_light(args)
+    _check_sampling_args(args)
+    _check_model_args(args)
+    inputs = [
+        ("OBJECT", args.object),
+        ("--into", args.into),
+        ("--mask", args.mask),
+        ("--envmap", args.envmap),
+        ("--w2c", args.w2c),
+    ]
+    siblings = [] if isinstance(args.mask, Path) else [_mask_out(args.out)]
+    checks.writable_file("--out", args.out, siblings=siblings, suffixes=(".png",))
+    checks.not_an_input("--out", args.out, inputs)
+    if args.save_envmap is not None:
+        from gaffer_envmap.io import check_write_suffix
+
+        check_write_suffix(args.save_envmap, "--save-envmap")
+        checks.writable_file("--save-envmap", args.save_envmap)
+        checks.not_an_input("--save-envmap", args.save_envmap, [*inputs, ("--out", args.out)])
+    return _Checked(background_wh=(bw, bh), envmap=envmap, w2c=w2c, key_light=key)
+
+
+def _lighting_for(args: argparse.Namespace, checked: _Checked, background: Photo) -> InsertLighting:
+    from gaffer_diffusion.insert_geometry import (
+        LEVEL_CAMERA,
+        BackgroundCamera,
+        InsertLighting,
+        light_from_photo,
+    )
+
+    w, h = background.size_wh
+    camera = BackgroundCamera(
+        width=w, height=h, fov_deg=args.fov, w2c=checked.w2c if checked.w2c else LEVEL_CAMERA
+    )
+    if checked.envmap is not None:
+        return InsertLighting(
+            envmap=checked.envmap, camera=camera, source=f"lighting: --envmap {args.envmap}"
+        )
+    key = checked.key_light
+    source = "lighting: the background wrapped onto the sphere (--light-from-photo) + " + (
+        f"a key light at azimuth {key.azimuth_deg:g}, elevation {key.elevation_deg:g}, "
+        f"strength {key.strength:g}, {key.size_deg:g} degrees"
+        if key is not None
+        else "no key light: the photo rarely shows its key light; give it with `--key-light AZ,EL`"
+    )
+    env = light_from_photo(background.rgb, camera, key)
+    return InsertLighting(envmap=env, camera=camera, key_light=key, source=source)
+
+
+def _placement(args: argparse.Namespace, read: PhotoMask, background: Photo) -> Placement:
+    from gaffer_diffusion.insert_geometry import object_extent, resolve_placement
+
+    return resolve_placement(
+        background.size_wh, object_extent(read.alpha), at_xy=args.at, height_px=args.height
+    )
+
+
+def _insert(args: argparse.Namespace) -> int:
+    import time
+
+    checked = _validate_insert(args)  # every flag and file, before torch or weights
+    read = _photo_and_mask(args, args.object, args.mask, _mask_out(args.out))
+    from gaffer_diffusion.photo import read_photo
+
+    background = read_photo(args.into)
+    placement = _placement(args, read, background)  # --at / --height refused before weights
+    lighting = _lighting_for(args, checked, background)
+    from gaffer_diffusion.insert import InsertConfig, insert_object
+    from gaffer_diffusion.photo import prepare_photo
+    from gaffer_diffusion.pipelines import RelightPipeline
+
+    _device(args)  # a CUDA device torch cannot use is refused before the weights load
+    model = _load_model(args.checkpoint, args.base_model)
+    pipe = RelightPipeline(model, _runtime(args))
+    compat = _compat(args)
+    prepared = prepare_photo(read.photo, read.alpha, size=model.config.resolution, compat=compat)
+    start = time.perf_counter()
+    result = insert_object(
+        pipe,
+        _sampling(args),
+        prepared=prepared,
+        background=background,
+        lighting=lighting,
+        placement=placement,
+        config=InsertConfig(shadow=args.shadow, detail=args.detail, compat=compat, seed=args.seed),
+    )
+    seconds = time.perf_counter() - start
+    if args.save_envmap is not None:
+        from gaffer_envmap.io import write_envmap
+
+        write_envmap(args.save_envmap, lighting.envmap)  # atomic: complete or absent
+    with write_with_outputs(args.out.parent, [read]) as stage:  # the image and an estimated mask
+        _save_png(stage / args.out.name, result.image)
+    light = result.light
+    shadow = (
+        f"shadow: {args.shadow} from {light.source} ({light.share:.0%} of the ground's light)"
+        if args.shadow != "none"
+        else "shadow: none"
+    )
+    x, y = placement.foot_xy
+    notes = [
+        f"object {placement.height_px:g} px tall, its lowest point at {x:g},{y:g}",
+        placement.chosen,
+        lighting.source,
+        shadow,
+        f"saved the lighting to {args.save_envmap}" if args.save_envmap is not None else "",
+        read.note,
+        f"{seconds:.2f} s",
+    ]
+    print(f"wrote {args.out}; " + "; ".join(n for n in notes if n))
+    return 0

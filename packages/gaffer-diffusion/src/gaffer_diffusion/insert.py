@@ -1,0 +1,197 @@
+"""Insert an object photo into a background photo (Neural Gaffer §4.1, object insertion; issue 32).
+
+The paper segments the object (SAM), estimates the background's lighting (DiffusionLight), relights
+the object with the diffusion model, pastes it, and adds a shadow from a shadow network. Here:
+
+1. **Lighting.** An environment map the user has (`--envmap`, seen from the background camera's pose),
+   or one built from the background photo itself (`light_from_photo`): the photo wrapped onto the
+   sphere at the camera's field of view, the rest of the sphere a blurred, mirrored extension of it,
+   expanded to HDR by an inverse tone curve, plus a key light added as a small disc of exact power
+   (`KeyLight`). The key light is mostly outside the frame: a classical wrap put the dominant light
+   about 50 degrees off (median, issue 32), so the key light should be given.
+2. **Relighting.** The object photo is relit under that map seen from the background camera
+   (`RelightPipeline`) and brought back to full resolution with the photo path's detail transfer
+   (`gaffer_diffusion.photo.relit_object`).
+3. **Placement.** It is scaled and moved so that its lowest centre point lands at `Placement.foot_xy`
+   with `Placement.height_px` pixels of height (`place_object`).
+4. **Shadow.** A pixel-height shadow (after Sheng et al., "Controllable Shadow Generation Using Pixel
+   Height Maps", ECCV 2022) is cast on the ground plane from the placed mask, away from the dominant
+   light, and multiplied into the background in linear light (`cast_shadow_2d`).
+5. **Composite.** The object is alpha-composited over it (`composite`). Pixels away from the object and
+   its shadow keep the background's bytes exactly.
+
+Geometry: the ground is the plane z = 0 of Blender's world (z up); the background camera is a pinhole
+with horizontal field of view `fov_deg` and pose `w2c` (default: level, looking along world +y, so
+azimuth 0 of a key light is straight ahead, behind the object). Each object pixel stands above the
+ground point under the object's lowest row (a billboard on the ground line, the pixel-height model);
+the ground seen at the foot's row is foreshortened by `(foot row - horizon row) / focal length`.
+"""
+
+from dataclasses import dataclass, field
+from typing import assert_never
+
+import numpy as np
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion._choices import DetailMode, PrepareCompat, ShadowMode
+from gaffer_diffusion.conditioning import RelightingConditions, lighting_from_envmap
+from gaffer_diffusion.errors import ConfigError, InputValueError
+from gaffer_diffusion.insert_geometry import (
+    LEVEL_CAMERA,
+    BackgroundCamera,
+    DominantLight,
+    InsertLighting,
+    KeyLight,
+    ObjectExtent,
+    PlacedObject,
+    Placement,
+    cast_shadow_2d,
+    composite,
+    default_placement,
+    dominant_light,
+    inverse_tone,
+    light_from_photo,
+    object_extent,
+    place_object,
+    resolve_placement,
+)
+from gaffer_diffusion.photo import Photo, PreparedPhoto, relit_object
+from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
+
+__all__ = [
+    "LEVEL_CAMERA",
+    "BackgroundCamera",
+    "DominantLight",
+    "InsertConfig",
+    "InsertLighting",
+    "InsertResult",
+    "KeyLight",
+    "ObjectExtent",
+    "PlacedObject",
+    "Placement",
+    "cast_shadow_2d",
+    "composite",
+    "default_placement",
+    "dominant_light",
+    "insert_object",
+    "inverse_tone",
+    "light_from_photo",
+    "object_extent",
+    "place_object",
+    "relight_under",
+    "resolve_placement",
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class InsertConfig:
+    """How an object is inserted (besides lighting and placement).
+
+    Attributes:
+        shadow: "2d" (pixel-height shadow, default) or "none"; "cycles" is refused (not built yet).
+        detail: "transfer" (the model's change of shading applied to the full-resolution object
+            photo, default) or "resize" (the model's output upsampled).
+        compat: the lighting encoding and framing the model expects (`_choices.PrepareCompat`).
+        seed: sampling seed.
+    """
+
+    shadow: ShadowMode = "2d"
+    detail: DetailMode = "transfer"
+    compat: PrepareCompat = "default"
+    seed: int = 0
+
+
+@dataclass(frozen=True, kw_only=True)
+class InsertResult:
+    """What `insert_object` made.
+
+    Attributes:
+        image: `[H, W, 3]` uint8 sRGB: the background at full size with the object and its shadow.
+        shadow: `[H, W]` float32 factor the background was multiplied by in linear light (1: untouched).
+        placed: the object as placed.
+        placement: the placement used.
+        lighting: the lighting used (its map is what `--save-envmap` writes).
+        light: the light the shadow comes from.
+        relit_model: `[3, S, S]` the model's relit crop, sRGB in [0, 1].
+    """
+
+    image: np.ndarray
+    shadow: np.ndarray
+    placed: PlacedObject
+    placement: Placement
+    lighting: InsertLighting
+    light: DominantLight
+    relit_model: Tensor = field(repr=False)
+
+
+def relight_under(
+    pipe: RelightPipeline,
+    prepared: PreparedPhoto,
+    lighting: InsertLighting,
+    sampling: SamplingConfig,
+    *,
+    compat: PrepareCompat = "default",
+    seed: int = 0,
+) -> Float[Tensor, "3 S S"]:
+    """The model's relit crop of `prepared` under `lighting` seen from the background camera."""
+    size = prepared.framing.size
+    maps = lighting_from_envmap(lighting.envmap, [lighting.camera.w2c], size=size, compat=compat)
+    conditions = RelightingConditions(
+        image=prepared.model_input.image, lighting=maps, mask=prepared.model_input.mask
+    )
+    return pipe(conditions, sampling, seeds=[seed]).images[0].float().cpu()
+
+
+def insert_object(
+    pipe: RelightPipeline,
+    sampling: SamplingConfig,
+    *,
+    prepared: PreparedPhoto,
+    background: Photo,
+    lighting: InsertLighting,
+    placement: Placement,
+    config: InsertConfig | None = None,
+) -> InsertResult:
+    """Relight `prepared` (the object photo) under `lighting`, place it in `background`, cast its
+    shadow and composite (the module docstring has the steps).
+
+    Raises:
+        ConfigError: `config.shadow == "cycles"` (not built yet: use "2d").
+        InputValueError: a background whose size is not the camera's.
+    """
+    config = config or InsertConfig()
+    w, h = background.size_wh
+    if (w, h) != (lighting.camera.width, lighting.camera.height):
+        raise InputValueError(
+            f"The background is {w}x{h} but the camera is "
+            f"{lighting.camera.width}x{lighting.camera.height}; build the camera from the background."
+        )
+    relit = relight_under(
+        pipe, prepared, lighting, sampling, compat=config.compat, seed=config.seed
+    )
+    extent = object_extent(prepared.alpha)
+    placed = place_object(
+        relit_object(prepared, relit, detail=config.detail), extent, placement, (h, w)
+    )
+    light = dominant_light(lighting.envmap, lighting.key_light)
+    match config.shadow:
+        case "2d":
+            shadow = cast_shadow_2d(placed, lighting.camera, light)
+        case "none":
+            shadow = np.ones((h, w), np.float32)
+        case "cycles":
+            raise ConfigError(
+                "`--shadow cycles` (Blender's shadow catcher) is not built yet; use `--shadow 2d`."
+            )
+        case _:
+            assert_never(config.shadow)
+    return InsertResult(
+        image=composite(background, placed, shadow),
+        shadow=shadow,
+        placed=placed,
+        placement=placement,
+        lighting=lighting,
+        light=light,
+        relit_model=relit,
+    )

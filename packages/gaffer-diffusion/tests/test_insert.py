@@ -1,0 +1,309 @@
+"""`gaffer-diffusion insert` (issue 32, item 3): an object photo relit under a background's lighting,
+placed by `--at` / `--height`, with a pixel-height shadow; the rest of the background byte for byte.
+
+The background is a perspective view of a bundled HDRI (what a camera at the map's centre sees), the
+object the shipped example photo; the model is the shipped gaffer-tiny (about a second on a CPU)."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from gaffer_diffusion import insert as ins
+from gaffer_diffusion import pretrained
+from gaffer_diffusion.cli import main
+from gaffer_diffusion.photo import (
+    RelitObject,
+    envmap_backdrop,
+    object_alpha,
+    read_photo,
+)
+from gaffer_envmap.bundled import read_bundled_hdri
+from gaffer_envmap.io import read_envmap
+from gaffer_envmap.stats import total_power
+
+W, H = 200, 150
+OBJECT = pretrained.example_dataset_path() / "objects" / "procedural_002" / "lit" / "000_000.png"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    tmp = tmp_path_factory.mktemp("insert")
+    env = read_bundled_hdri("courtyard")
+    view = envmap_backdrop(env.radiance_linear, ins.LEVEL_CAMERA.rotation, height=H, width=W)
+    Image.fromarray(np.round(view * 255).astype(np.uint8)).save(tmp / "bg.png")
+    Image.fromarray(np.zeros((10, 10), np.uint8)).save(tmp / "small_mask.png")
+    (tmp / "text.exr").write_text("not an EXR\n")
+    return {"bg": tmp / "bg.png", "small_mask": tmp / "small_mask.png", "text": tmp / "text.exr"}
+
+
+def _run(files, out: Path, *extra: str) -> int:
+    return main(["insert", str(OBJECT), "--into", str(files["bg"]), "--out", str(out), *extra])
+
+
+def _read(path: Path) -> np.ndarray:
+    return np.asarray(Image.open(path).convert("RGB"))
+
+
+def _identity_relit() -> tuple[RelitObject, ins.ObjectExtent]:
+    """The object photo itself as the 'relit' object (no model), over its whole frame."""
+    photo = read_photo(OBJECT)
+    alpha = object_alpha(photo, None)
+    h, w = alpha.shape
+    relit = RelitObject(box=(0, 0, h, w), rgb=photo.rgb, alpha=alpha)
+    return relit, ins.object_extent(alpha)
+
+
+# ----- placement -----
+
+
+def test_placement_puts_the_lowest_centre_point_at_at_and_scales_to_height() -> None:
+    relit, extent = _identity_relit()
+    for at, height in [((100, 120), 60.0), ((40.0, 149.0), 25.0), ((150, 80), 80.0)]:
+        placement = ins.resolve_placement((W, H), extent, at_xy=at, height_px=height)
+        placed = ins.place_object(relit, extent, placement, (H, W))
+        full = placed.full_alpha(H, W)
+        rows, cols = np.nonzero(full > 0.5)
+        assert rows.max() == at[1], (at, rows.max())  # its lowest row lands on row Y
+        assert abs((rows.max() + 1 - rows.min()) - height) <= 1.0
+        assert abs((cols.min() + cols.max() + 1) / 2 - (at[0] + 0.5)) <= 1.0
+        assert (full[: max(int(at[1] + 1 - height) - 3, 0)] == 0).all()  # nothing above its top
+
+
+def test_defaults_are_the_bottom_third_and_the_photo_height() -> None:
+    _, extent = _identity_relit()
+    placement = ins.resolve_placement((W, H), extent)
+    assert placement.foot_xy == (100.0, 125.0)  # centre of the bottom third
+    assert placement.height_px == extent.height
+    assert "--at 100,125" in placement.chosen and "--height" in placement.chosen
+
+
+@pytest.mark.parametrize(
+    ("at", "height", "flag"),
+    [((200, 10), None, "`--at`"), ((-1, 10), None, "`--at`"), ((100, 140), 500.0, "`--height`"),
+     ((3, 140), 100.0, "`--height`"), ((100, 140), 1.0, "`--height`")],
+)  # fmt: skip
+def test_placements_that_do_not_fit_are_refused(at, height, flag) -> None:
+    _, extent = _identity_relit()
+    with pytest.raises(ValueError, match=flag):
+        ins.resolve_placement((W, H), extent, at_xy=at, height_px=height)
+
+
+# ----- lighting -----
+
+
+def test_light_from_photo_adds_the_key_light_with_its_exact_power() -> None:
+    rgb = _bg_rgb()
+    camera = ins.BackgroundCamera(width=W, height=H)
+    plain = ins.light_from_photo(rgb, camera)
+    key = ins.KeyLight(azimuth_deg=135.0, elevation_deg=40.0, strength=3.0, size_deg=5.0)
+    lit = ins.light_from_photo(rgb, camera, key)
+    assert lit.radiance_linear.shape == (128, 256, 3) and lit.convention == "blender"
+    mean_lum = float(total_power(plain) @ np.array([0.2126, 0.7152, 0.0722])) / (4 * math.pi)
+    added = total_power(lit) - total_power(plain)
+    np.testing.assert_allclose(added, 3.0 * math.pi * mean_lum, rtol=1e-4)
+    light = ins.dominant_light(lit, key)
+    np.testing.assert_allclose(light.direction_world, key.direction)
+    assert 0.3 < light.share < 1.0
+    # the photo is where the camera looks: world +y (u = 0.25, column 64) on the horizon (row 64)
+    from gaffer_diffusion.detail_transfer import srgb_to_linear
+
+    centre = ins.inverse_tone(srgb_to_linear(rgb[H // 2 - 2 : H // 2 + 2, W // 2 - 2 : W // 2 + 2]))
+    np.testing.assert_allclose(
+        plain.radiance_linear[63:65, 63:65].mean((0, 1)), centre.mean((0, 1)), rtol=0.25
+    )
+
+
+def _bg_rgb() -> np.ndarray:
+    env = read_bundled_hdri("courtyard")
+    return envmap_backdrop(env.radiance_linear, ins.LEVEL_CAMERA.rotation, height=H, width=W)
+
+
+def test_dominant_light_of_a_map_finds_its_sun() -> None:
+    env = read_bundled_hdri("courtyard")
+    light = ins.dominant_light(env)
+    assert light.direction_world[2] > 0.3 and 0.2 < light.share < 1.0
+    key = ins.KeyLight(azimuth_deg=0.0, elevation_deg=0.0)
+    assert np.allclose(key.direction, [0.0, 1.0, 0.0])
+    with pytest.raises(ValueError, match="--key-light"):
+        ins.KeyLight(azimuth_deg=0.0, elevation_deg=95.0)
+
+
+# ----- shadow -----
+
+
+def _placed(at=(100, 130), height=60.0) -> ins.PlacedObject:
+    relit, extent = _identity_relit()
+    placement = ins.resolve_placement((W, H), extent, at_xy=at, height_px=height)
+    return ins.place_object(relit, extent, placement, (H, W))
+
+
+def _columns(placed: ins.PlacedObject) -> tuple[int, int]:
+    """First and last background column the placed object covers."""
+    cols = np.nonzero(placed.full_alpha(H, W).any(0))[0]
+    return int(cols.min()), int(cols.max())
+
+
+def _shadow_for(azimuth: float, elevation: float = 35.0) -> np.ndarray:
+    key = ins.KeyLight(azimuth_deg=azimuth, elevation_deg=elevation)
+    light = ins.DominantLight(direction_world=key.direction, share=0.6, size_deg=5.0, source="k")
+    return ins.cast_shadow_2d(_placed(), ins.BackgroundCamera(width=W, height=H), light)
+
+
+def test_the_shadow_falls_away_from_the_key_light_and_moves_with_it() -> None:
+    first, last = _columns(_placed())  # the object's columns (about 64..136), rows 71..130
+    from_right, from_left = _shadow_for(90.0), _shadow_for(270.0)
+    dark_r, dark_l = 1 - from_right, 1 - from_left
+    left, right = np.s_[:, : first - 4], np.s_[:, last + 5 :]  # either side of the object
+    assert dark_r[left].sum() > 10 * dark_r[right].sum() and dark_r[left].max() > 0.3
+    assert dark_l[right].sum() > 10 * dark_l[left].sum() and dark_l[right].max() > 0.3
+    # a light behind the object (in front of the camera) throws the shadow towards the camera
+    behind = 1 - _shadow_for(0.0)
+    below = behind[131:]
+    assert below.sum() > 0 and below.max() > 0.3
+    # an overhead light: only a pool under the foot; a light below the horizon: no cast shadow
+    overhead = 1 - _shadow_for(0.0, 90.0)
+    assert overhead[:, : first - 4].sum() == 0 and overhead[:, last + 5 :].sum() == 0
+    assert np.array_equal(_shadow_for(90.0, -10.0) < 1, _shadow_for(270.0, -10.0) < 1)
+    for dark in (dark_r, dark_l, behind):
+        assert dark.min() >= 0 and (dark[:75] == 0).all()  # nothing above the horizon (row 75)
+
+
+# ----- the command line, end to end -----
+
+
+def test_cli_insert_keeps_the_background_bytes_away_from_the_object_and_its_shadow(
+    files, tmp_path, capsys
+) -> None:
+    bg = _read(files["bg"])
+    out = tmp_path / "o.png"
+    assert _run(files, out, "--at", "100,130", "--height", "60", "--key-light", "90,35") == 0
+    said = capsys.readouterr().out
+    assert "object 60 px tall, its lowest point at 100,130" in said and "key light" in said
+    img = _read(out)
+    assert img.shape == bg.shape
+    changed = (img != bg).any(-1)
+    rows, cols = np.nonzero(changed)
+    assert changed.sum() > 500
+    # the object spans rows 71..130 and columns first..last; its shadow falls left (key from the
+    # right) on the ground below the horizon (row 75): nothing changes above the object, right of
+    # it, or far from it
+    first, last = _columns(_placed())
+    assert rows.min() >= 69 and cols.max() <= last + 1 and changed[:69].sum() == 0
+    assert changed[:, last + 2 :].sum() == 0
+    ground = np.s_[100:145, 5 : first - 2]
+    assert (img[ground].astype(int) - bg[ground].astype(int)).sum() < 0  # the shadow darkens
+    # moving the key light to the left moves the shadow to the right
+    out2 = tmp_path / "o2.png"
+    assert _run(files, out2, "--at", "100,130", "--height", "60", "--key-light", "270,35") == 0
+    img2 = _read(out2)
+    changed2 = (img2 != bg).any(-1)
+    assert changed2[:, : first - 1].sum() == 0 and changed2[:, last + 2 :].sum() > 100
+
+
+def test_cli_save_envmap_round_trips(files, tmp_path) -> None:
+    a, env = tmp_path / "a.png", tmp_path / "light.exr"
+    common = ["--at", "100,130", "--height", "60", "--shadow", "none"]
+    assert _run(files, a, *common, "--key-light", "135,40", "--save-envmap", str(env)) == 0
+    saved = read_envmap(env)
+    assert saved.radiance_linear.shape == (128, 256, 3) and saved.convention == "blender"
+    # the saved map is the lighting used: relighting under it gives the same picture
+    b = tmp_path / "b.png"
+    assert _run(files, b, *common, "--envmap", str(env)) == 0
+    assert np.array_equal(_read(a), _read(b))
+    # with shadow none only the object's pixels change
+    changed = (_read(a) != _read(files["bg"])).any(-1)
+    covered = _placed().full_alpha(H, W) > 0
+    assert not (changed & ~covered).any() and changed.sum() > 0.8 * covered.sum()
+
+
+def test_cli_with_an_envmap_and_detail_resize(files, tmp_path) -> None:
+    out = tmp_path / "e.png"
+    assert _run(files, out, "--envmap", "courtyard", "--detail", "resize", "--height", "50") == 0
+    assert _read(out).shape == (H, W, 3)
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--mask", "{small_mask}"], "`--mask`"),
+        (["--at", "500,10"], "`--at`"),
+        (["--at", "100,140", "--height", "400"], "`--height` 141 or less"),
+        (["--envmap", "{text}"], "`--envmap`"),
+        (["--shadow", "cycles"], "`--shadow 2d`"),
+        (["--envmap", "courtyard", "--key-light", "10,20"], "`--key-light`"),
+        (["--key-light", "10,20,-1"], "`--key-light`"),
+        (["--fov", "0"], "`--fov`"),
+        (["--save-envmap", "e.png"], "`--save-envmap`"),
+    ],
+)
+def test_cli_refusals_are_one_line_before_the_model_loads(
+    files, tmp_path, monkeypatch, capsys, extra, words
+) -> None:
+    import gaffer_diffusion.cli.insert as cli_insert
+
+    def no_model(*_a: object) -> None:
+        raise AssertionError("the model was loaded")
+
+    monkeypatch.setattr(cli_insert, "_load_model", no_model)
+    monkeypatch.chdir(tmp_path)
+    argv = [a.format(**{k: str(v) for k, v in files.items()}) for a in extra]
+    assert _run(files, tmp_path / "o.png", *argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written
+
+
+def test_cycles_without_bpy_names_the_fallback(files, tmp_path, monkeypatch, capsys) -> None:
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "bpy" else real(name, *a)
+    )
+    assert _run(files, tmp_path / "o.png", "--shadow", "cycles") == 2
+    err = capsys.readouterr().err
+    assert "bpy" in err and "`--shadow 2d`" in err and not (tmp_path / "o.png").exists()
+
+
+def test_insert_object_library_result(files) -> None:
+    """The library call the CLI makes: typed result, shadow factor 1 wherever bytes are kept."""
+    from gaffer_diffusion.demo import load_model
+    from gaffer_diffusion.photo import prepare_photo
+    from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
+
+    model = load_model(None).model
+    photo = read_photo(OBJECT)
+    prepared = prepare_photo(photo, object_alpha(photo, None), size=model.config.resolution)
+    background = read_photo(files["bg"])
+    camera = ins.BackgroundCamera(width=W, height=H)
+    key = ins.KeyLight(azimuth_deg=200.0, elevation_deg=50.0)
+    lighting = ins.InsertLighting(
+        envmap=ins.light_from_photo(background.rgb, camera, key), camera=camera, key_light=key
+    )
+    placement = ins.resolve_placement((W, H), ins.object_extent(prepared.alpha), height_px=50.0)
+    result = ins.insert_object(
+        RelightPipeline(model),
+        SamplingConfig(num_inference_steps=1, guidance_scale=1.0),
+        prepared=prepared,
+        background=background,
+        lighting=lighting,
+        placement=placement,
+    )
+    assert result.image.shape == (H, W, 3) and result.image.dtype == np.uint8
+    keep = (result.shadow == 1.0) & (result.placed.full_alpha(H, W) == 0)
+    assert np.array_equal(result.image[keep], background.rgb_u8[keep])
+    assert (result.shadow < 1).any() and torch.isfinite(result.relit_model).all()
+    with pytest.raises(ValueError, match="--shadow 2d"):
+        ins.insert_object(
+            RelightPipeline(model),
+            SamplingConfig(num_inference_steps=1, guidance_scale=1.0),
+            prepared=prepared,
+            background=background,
+            lighting=lighting,
+            placement=placement,
+            config=ins.InsertConfig(shadow="cycles"),
+        )
