@@ -65,6 +65,7 @@ E, D, G, N = "gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf"
 CITY = "{F}/city.exr"
 LONG = "x" * 300  # a file name longer than file systems allow (255 bytes)
 LIGHT = "--envmap city --azimuth 0 --elevation 10"
+INS = "{F}/good.png --into {F}/photo.jpg"
 
 CASES: list[Case] = [
     # --- gaffer-envmap ------------------------------------------------------------------------
@@ -219,6 +220,25 @@ CASES: list[Case] = [
     # a photo without a usable alpha: its mask is estimated (the app's GrabCut), not refused
     _c(G, "prepare-rgb-photo", "prepare {F}/photo.jpg --out p.png --size 32", expect="handle"),
     _c(G, "prepare-opaque-rgba", "prepare {F}/opaque.png --out p.png --size 32", expect="handle"),
+    # insert (issue 32): the object good.png (30x40) into the background photo.jpg (80x60)
+    _c(G, "insert-mask-size", f"insert {INS} --mask {{F}}/photo.jpg --out o.png", words="`--mask`"),
+    _c(G, "insert-at-outside", f"insert {INS} --at 80,10 --out o.png", words="`--at`"),
+    _c(G, "insert-height-too-tall", f"insert {INS} --at 40,50 --height 60 --out o.png",
+       words="`--height` 51 or less"),
+    _c(G, "insert-height-0", f"insert {INS} --height 0 --out o.png", words="`--height`"),
+    _c(G, "insert-text-envmap", f"insert {INS} --envmap {{F}}/text.exr --out o.png",
+       words="`--envmap`"),
+    _c(G, "insert-truncated-envmap", f"insert {INS} --envmap {{F}}/truncated.exr --out o.png"),
+    _c(G, "insert-shadow-cycles", f"insert {INS} --shadow cycles --out o.png", words="`--shadow 2d`"),
+    _c(G, "insert-key-light-nan", f"insert {INS} --key-light nan,30 --out o.png",
+       words="`--key-light`"),
+    _c(G, "insert-key-light-with-envmap", f"insert {INS} --envmap city --key-light 90,30 --out o.png",
+       words="`--key-light`"),
+    _c(G, "insert-save-envmap-png", f"insert {INS} --save-envmap e.png --out o.png",
+       words="`--save-envmap`"),
+    _c(G, "insert-out-is-background", "insert {F}/good.png --into {F}/opaque.png --out {F}/opaque.png",
+       words="`--into`"),
+    _c(G, "insert-default", f"insert {INS} --out o.png --save-envmap e.exr", expect="handle"),
     _c(G, "relight-rgb-jpeg", f"relight {{F}}/photo.jpg {LIGHT} --out o.png", expect="handle"),
     # --- gaffer-nerf --------------------------------------------------------------------------
     _c(N, "fit-missing", "fit {F}/missing --out fit"),
