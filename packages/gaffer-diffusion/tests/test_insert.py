@@ -307,3 +307,40 @@ def test_insert_object_library_result(files) -> None:
             placement=placement,
             config=ins.InsertConfig(shadow="cycles"),
         )
+
+
+def test_the_map_from_a_photo_mirrors_it_at_its_edges() -> None:
+    """Just above the frame the sphere shows the photo's top, just below its bottom, just right of it
+    its right edge; behind the camera both sides meet (no seam)."""
+    rgb = np.zeros((60, 80, 3), np.float32)
+    rgb[:30] = (0.1, 0.2, 0.9)  # blue sky
+    rgb[30:] = (0.8, 0.3, 0.1)  # red ground
+    rgb[:, 70:] = (0.95, 0.95, 0.95)  # a white strip on the right
+    camera = ins.BackgroundCamera(width=80, height=60)
+    env = ins.light_from_photo(rgb, camera, width=256).radiance_linear
+    from gaffer_envmap.conventions import direction_to_uv
+    from gaffer_envmap.sky import sun_direction
+
+    def at(elevation: float, azimuth: float) -> np.ndarray:
+        u, v = direction_to_uv(sun_direction(elevation, azimuth))
+        return env[int(v * 128), int(u * 256)]
+
+    above, below = at(25.0, 0.0), at(-25.0, 0.0)  # the frame spans +-15 degrees vertically
+    assert above[2] > above[0] and below[0] > below[2]
+    right, left = at(0.0, 25.0), at(0.0, -25.0)  # and +-19.8 horizontally
+    assert right.min() > 2 * left.min()  # the white strip continues to the right, not the left
+    np.testing.assert_allclose(at(5.0, 179.0), at(5.0, -179.0), rtol=0.05)  # behind: no seam
+
+
+def test_a_camera_looking_down_puts_the_horizon_above_the_frame() -> None:
+    from gaffer_envmap.poses import look_at_w2c_blender
+
+    level = ins.BackgroundCamera(width=W, height=H)
+    assert level.horizon_row == H / 2
+    down = ins.BackgroundCamera(
+        width=W, height=H, w2c=look_at_w2c_blender(np.array([0.0, -3.0, 3.0]))
+    )
+    assert down.horizon_row < 0  # 45 degrees down with a 30-degree tall frame
+    right, forward = down.ground_axes()
+    np.testing.assert_allclose(right, [1.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(forward, [0.0, 1.0, 0.0], atol=1e-9)

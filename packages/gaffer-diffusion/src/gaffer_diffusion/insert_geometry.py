@@ -764,9 +764,9 @@ def cast_shadow_2d(
                 continue
             occ = np.zeros_like(occluded)
             for i in sel:
-                _draw_ellipse(
-                    occ, sx_c[i] - x0, sy_c[i] - y0, semi_x[i], semi_y[i], float(vs[idx[i]])
-                )
+                centre = (float(sx_c[i] - x0), float(sy_c[i] - y0))
+                axes = (float(semi_x[i]), float(semi_y[i]))
+                _draw_ellipse(occ, *centre, *axes, float(vs[idx[i]]))
             occ = _blur(occ, max(round(0.5 + grow * (lo + hi) / 2.0), 1))
             occluded = 1.0 - (1.0 - occluded) * (1.0 - np.clip(occ, 0.0, 1.0))
         horizon = math.ceil(camera.horizon_row) - y0
