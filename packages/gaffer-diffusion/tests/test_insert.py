@@ -344,3 +344,14 @@ def test_a_camera_looking_down_puts_the_horizon_above_the_frame() -> None:
     right, forward = down.ground_axes()
     np.testing.assert_allclose(right, [1.0, 0.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(forward, [0.0, 1.0, 0.0], atol=1e-9)
+
+
+def test_a_background_with_exif_rotation_is_placed_as_displayed(files, tmp_path) -> None:
+    """`--at` is checked against the background as shown (EXIF orientation applied, as it is read)."""
+    ex = Image.Exif()
+    ex[0x0112] = 6  # stored landscape, shown portrait
+    Image.open(files["bg"]).convert("RGB").save(tmp_path / "turned.jpg", exif=ex, quality=95)
+    out = tmp_path / "t.png"
+    argv = ["insert", str(OBJECT), "--into", str(tmp_path / "turned.jpg"), "--out", str(out)]
+    assert main([*argv, "--at", "100,180", "--height", "40", "--shadow", "none"]) == 0
+    assert _read(out).shape == (W, H, 3)  # 150 wide, 200 tall, as displayed

@@ -81,6 +81,20 @@ def _key_light(args: argparse.Namespace) -> KeyLight | None:
     return KeyLight(**dict(zip(("azimuth_deg", "elevation_deg", "strength", "size_deg"), args.key_light, strict=False)))  # fmt: skip
 
 
+def _shown_size(flag: str, path: Path) -> tuple[int, int]:
+    """(width, height) of an image as displayed (EXIF orientation 5 to 8 swaps them, as `read_photo`
+    and `read_mask` apply it), from its header."""
+    w, h = checks.image_size(flag, path)
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            turned = im.getexif().get(0x0112, 1) in (5, 6, 7, 8)
+    except (OSError, ValueError, SyntaxError):
+        turned = False
+    return (h, w) if turned else (w, h)
+
+
 def _check_shadow(mode: str) -> None:
     if mode != "cycles":
         return
@@ -100,10 +114,10 @@ def _validate_insert(args: argparse.Namespace) -> _Checked:
     """Every flag and file, before torch is imported or a model loads; one line per refusal."""
     from gaffer_envmap.poses import W2CBlender
 
-    ow, oh = checks.image_size("OBJECT", args.object)
-    bw, bh = checks.image_size("--into", args.into)
+    ow, oh = _shown_size("OBJECT", args.object)
+    bw, bh = _shown_size("--into", args.into)
     if isinstance(args.mask, Path):
-        mw, mh = checks.image_size("--mask", args.mask)
+        mw, mh = _shown_size("--mask", args.mask)
         if (mw, mh) != (ow, oh):
             raise InputValueError(
                 f"`--mask` {args.mask} is {mw}x{mh} but OBJECT {args.object} is {ow}x{oh} (width x "
