@@ -688,19 +688,138 @@ def _draw_ellipse(
     np.maximum(canvas[y0:y1, x0:x1], cover.astype(np.float32), out=canvas[y0:y1, x0:x1])
 
 
-def _slices(placed: PlacedObject) -> tuple[np.ndarray, ...]:
-    """Per row of the placed object that it covers: height above the foot, centre x, half-width and
-    coverage (background pixel-edge coordinates)."""
+@dataclass(frozen=True, kw_only=True)
+class _Rows:
+    """Per row of the placed object's box: its height above the foot (pixel centres), whether it
+    covers anything, its centre column, half-width and most opaque coverage (background pixels)."""
+
+    height: np.ndarray
+    covered: np.ndarray
+    centre: np.ndarray
+    half: np.ndarray
+    cover: np.ndarray
+
+
+def _rows(placed: PlacedObject) -> _Rows:
     t, l, _, _ = placed.box
     a = placed.alpha
     solid = a > ALPHA_THRESHOLD
-    rows = np.nonzero(solid.any(1))[0]
-    first = np.argmax(solid[rows], axis=1)
-    last = a.shape[1] - 1 - np.argmax(solid[rows][:, ::-1], axis=1)
-    height = placed.foot_edge[1] - (t + rows + 0.5)
-    centre = l + (first + last + 1) / 2.0
-    half = (last + 1 - first) / 2.0
-    return height, centre, half, a[rows].max(1)
+    first = np.argmax(solid, axis=1)
+    last = a.shape[1] - 1 - np.argmax(solid[:, ::-1], axis=1)
+    return _Rows(
+        height=placed.foot_edge[1] - (t + np.arange(a.shape[0]) + 0.5),
+        covered=solid.any(1),
+        centre=l + (first + last + 1) / 2.0,
+        half=(last + 1 - first) / 2.0,
+        cover=a.max(1),
+    )
+
+
+class _WorkGrid:
+    """A coarse grid over a background region `(top, left, bottom, right)`: one work pixel is `f`
+    background pixels, so that the shadow's cost does not grow with the picture (it is soft anyway)."""
+
+    def __init__(self, region: tuple[int, int, int, int], f: float) -> None:
+        self.region, self.f = region, f
+        y0, x0, y1, x1 = region
+        self.canvas = np.zeros(
+            (max(math.ceil((y1 - y0) / f), 1), max(math.ceil((x1 - x0) / f), 1)), np.float32
+        )
+
+    def ellipse(self, cx: float, cy: float, sx: float, sy: float, value: float) -> None:
+        """Max an ellipse given in background pixel-edge coordinates into a fresh layer."""
+        y0, x0 = self.region[0], self.region[1]
+        _draw_ellipse(
+            self.canvas,
+            (cx - x0) / self.f,
+            (cy - y0) / self.f,
+            max(sx / self.f, 0.5),
+            max(sy / self.f, 0.5),
+            value,
+        )
+
+    def soften(self, sigma_bg: float) -> np.ndarray:
+        """The canvas blurred by about `sigma_bg` background pixels; the canvas is cleared."""
+        out = np.clip(_blur(self.canvas, max(round(sigma_bg / self.f), 1)), 0.0, 1.0)
+        self.canvas = np.zeros_like(self.canvas)
+        return out
+
+    def to_region(self, work: np.ndarray) -> np.ndarray:
+        """A work map sampled at the region's pixel centres (bilinear), `[bottom - top, right - left]`."""
+        y0, x0, y1, x1 = self.region
+        hw, ww = work.shape
+        gy = 2.0 * ((np.arange(y1 - y0) + 0.5) / self.f) / hw - 1.0
+        gx = 2.0 * ((np.arange(x1 - x0) + 0.5) / self.f) / ww - 1.0
+        grid = np.stack(np.broadcast_arrays(gx[None, :], gy[:, None]), -1).astype(np.float32)
+        out = F.grid_sample(
+            torch.from_numpy(np.ascontiguousarray(work))[None, None],
+            torch.from_numpy(grid)[None],
+            mode="bilinear",
+            padding_mode="border",
+            align_corners=False,
+        )
+        return out[0, 0].numpy()
+
+
+SHADOW_WORK_HEIGHT = 192.0
+"""The shadow is drawn on a grid where the object is at most this many pixels tall (`_WorkGrid`)."""
+
+
+def _cast(
+    placed: PlacedObject,
+    rows: _Rows,
+    offsets: tuple[float, float, float],
+    light: DominantLight,
+    camera: BackgroundCamera,
+    bands: int,
+) -> tuple[tuple[int, int, int, int], np.ndarray] | None:
+    """The cast shadow's occlusion over a region of the background, or None when nothing casts."""
+    dx, dy, k = offsets
+    fy = placed.foot_edge[1]
+    up = rows.covered & (rows.height > 0)
+    if not up.any():
+        return None
+    t = placed.box[0]
+    f = max(1.0, placed.height_px / SHADOW_WORK_HEIGHT)
+    # samples along the height, close enough that consecutive ellipses overlap by half, at most
+    # one work pixel apart (more samples than rows where the shadow is long)
+    step = math.hypot(dx, dy)
+    smallest = max(float(np.median(rows.half[up])) * min(k, 1.0) / f, 0.5)  # work pixels
+    spacing = float(np.clip(0.5 * smallest / max(step, 1e-6), 1.0 / 16.0, 1.0)) * f
+    h_lo, h_hi = float(rows.height[up].min()), float(rows.height[up].max())
+    hq = np.arange(h_lo, h_hi + spacing / 2, spacing)
+    r = np.clip(np.round(fy - hq - t - 0.5).astype(np.int64), 0, len(rows.height) - 1)
+    keep = up[r]
+    hq, r = hq[keep], r[keep]
+    cx, cy = rows.centre[r] + hq * dx, fy + hq * dy
+    sx, sy = rows.half[r], np.maximum(rows.half[r] * k, 0.5)
+    sin_e = max(float(light.direction_world[2]), 0.05)
+    grow = 0.5 * math.radians(light.size_deg) / sin_e * (1.0 + k) / 2.0  # sigma per px of height
+    pad = int(3 * (f + grow * h_hi) + sx.max() + 2 * f + 4)
+    b, l, rr = placed.box[2], placed.box[1], placed.box[3]
+    region = (
+        max(int(min(cy.min(), t)) - pad, 0),
+        max(int(min(cx.min(), l)) - pad, 0),
+        min(int(max(cy.max(), b)) + pad, camera.height),
+        min(int(max(cx.max(), rr)) + pad, camera.width),
+    )
+    if region[2] <= region[0] or region[3] <= region[1]:
+        return None
+    grid = _WorkGrid(region, f)
+    occluded = np.zeros_like(grid.canvas)
+    for lo, hi in itertools.pairwise(np.linspace(0.0, h_hi + 1e-6, bands + 1)):
+        sel = np.nonzero((hq >= lo) & (hq < hi))[0]
+        for i in sel:
+            grid.ellipse(
+                float(cx[i]), float(cy[i]), float(sx[i]), float(sy[i]), float(rows.cover[r[i]])
+            )
+        if len(sel):
+            occluded = 1.0 - (1.0 - occluded) * (1.0 - grid.soften(0.5 + grow * (lo + hi) / 2.0))
+    out = grid.to_region(occluded)
+    horizon = math.ceil(camera.horizon_row) - region[0]
+    if horizon > 0:
+        out[: min(horizon, out.shape[0])] = 0.0  # no ground above the horizon
+    return region, out
 
 
 def cast_shadow_2d(
@@ -717,74 +836,49 @@ def cast_shadow_2d(
     height). A directional light throws that disc onto the ground unchanged, moved by `h` times the
     light's ground offset per unit of height; seen by the camera it is an ellipse, the ground being
     foreshortened at the foot's row by `k = (foot row - horizon row) / focal length`. The cast shadow
-    is the union of these ellipses (one per row, more where the shadow is long, so they overlap),
-    softened by a penumbra that grows with the height and the light's size (contact hardening, in
-    `bands` height bands), and clipped at the horizon. It removes up to `light.share` of the light; a
+    is the union of these ellipses (sampled along the height so that they overlap), softened by a
+    penumbra that grows with the height and the light's size (contact hardening, in `bands` height
+    bands), and clipped at the horizon; it is drawn on a grid where the object is at most
+    `SHADOW_WORK_HEIGHT` pixels tall and resampled. It removes up to `light.share` of the light; a
     contact shadow under the foot removes up to `CONTACT_STRENGTH` of the rest.
 
     Returns:
         float32 in (0, 1]; exactly 1 where the shadow darkens by less than `SHADOW_CUTOFF`.
     """
     h_bg, w_bg = camera.height, camera.width
-    t, l, b, r = placed.box
     fx, fy = placed.foot_edge
-    height, centre, half, cover = _slices(placed)
-    if len(height) == 0:
+    rows = _rows(placed)
+    if not rows.covered.any():
         return np.ones((h_bg, w_bg), np.float32)
     offsets = _shadow_offsets(light, camera, fy)
     k = max((fy - camera.horizon_row) / camera.focal_px, MIN_FORESHORTENING)
     lit = np.ones((h_bg, w_bg), np.float32)  # the share of the dominant light that still arrives
-    up = height > 0
-    if offsets is not None and light.share > 0 and up.any():
-        dx, dy, _ = offsets
-        hs, cs, ws, vs = height[up], centre[up], half[up], cover[up]
-        # more samples than rows where consecutive ellipses would not overlap by half
-        step = math.hypot(dx, dy)
-        smallest = max(float(np.median(ws)) * min(k, 1.0), 0.5)
-        n = int(np.clip(math.ceil(2.0 * step / smallest), 1, 16))
-        idx = np.repeat(np.arange(len(hs)), n)
-        frac = np.tile((np.arange(n) + 0.5) / n - 0.5, len(hs))
-        hh = hs[idx] - frac  # heights of the samples (rows run downwards, heights upwards)
-        sx_c, sy_c = cs[idx] + hh * dx, fy + hh * dy
-        semi_x, semi_y = ws[idx], np.maximum(ws[idx] * k, 0.5)
-        diam = math.radians(light.size_deg)
-        sin_e = max(float(light.direction_world[2]), 0.05)
-        grow = 0.5 * diam / sin_e * (1.0 + k) / 2.0  # penumbra sigma per pixel of height
-        reach = float(hh.max())
-        pad = int(3 * (1 + grow * reach) + semi_x.max() + 4)
-        y0 = max(int(min(sy_c.min(), t)) - pad, 0)
-        y1 = min(int(max(sy_c.max(), b)) + pad, h_bg)
-        x0 = max(int(min(sx_c.min(), l)) - pad, 0)
-        x1 = min(int(max(sx_c.max(), r)) + pad, w_bg)
-        occluded = np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), np.float32)
-        edges = np.linspace(0.0, reach + 1e-6, bands + 1)
-        for lo, hi in itertools.pairwise(edges):
-            sel = np.nonzero((hh >= lo) & (hh < hi))[0]
-            if len(sel) == 0 or occluded.size == 0:
-                continue
-            occ = np.zeros_like(occluded)
-            for i in sel:
-                centre = (float(sx_c[i] - x0), float(sy_c[i] - y0))
-                axes = (float(semi_x[i]), float(semi_y[i]))
-                _draw_ellipse(occ, *centre, *axes, float(vs[idx[i]]))
-            occ = _blur(occ, max(round(0.5 + grow * (lo + hi) / 2.0), 1))
-            occluded = 1.0 - (1.0 - occluded) * (1.0 - np.clip(occ, 0.0, 1.0))
-        horizon = math.ceil(camera.horizon_row) - y0
-        if horizon > 0:
-            occluded[: min(horizon, occluded.shape[0])] = 0.0  # no ground above the horizon
+    cast = (
+        None
+        if offsets is None or light.share <= 0
+        else _cast(placed, rows, offsets, light, camera, bands)
+    )
+    if cast is not None:
+        (y0, x0, y1, x1), occluded = cast
         lit[y0:y1, x0:x1] = 1.0 - occluded
     # contact shadow: the sky the object hides from the ground just under its foot
-    low = height <= max(0.1 * placed.height_px, 1.0)
-    semi = float(half[low].max()) * 1.1 if low.any() else float(half.max())
+    low = rows.covered & (rows.height <= max(0.1 * placed.height_px, 1.0))
+    semi = float(rows.half[low].max() if low.any() else rows.half[rows.covered].max()) * 1.1
     ry = max(k * semi, 1.0)
+    f = max(1.0, placed.height_px / SHADOW_WORK_HEIGHT)
+    pad = int(3 * ry + 2 * f + 4)
+    region = (
+        max(int(fy - ry) - pad, 0),
+        max(int(fx - semi) - pad, 0),
+        min(int(fy + ry) + pad, h_bg),
+        min(int(fx + semi) + pad, w_bg),
+    )
     contact = np.zeros((h_bg, w_bg), np.float32)
-    pad = int(3 * ry + 4)
-    y0, y1 = max(int(fy - ry) - pad, 0), min(int(fy + ry) + pad, h_bg)
-    x0, x1 = max(int(fx - semi) - pad, 0), min(int(fx + semi) + pad, w_bg)
-    if y1 > y0 and x1 > x0:
-        patch = np.zeros((y1 - y0, x1 - x0), np.float32)
-        _draw_ellipse(patch, fx - x0, fy - y0, semi, ry, 1.0)
-        contact[y0:y1, x0:x1] = np.clip(_blur(patch, max(round(0.5 * ry), 1)), 0.0, 1.0)
+    if region[2] > region[0] and region[3] > region[1]:
+        grid = _WorkGrid(region, f)
+        grid.ellipse(fx, fy, semi, ry, 1.0)
+        y0, x0, y1, x1 = region
+        contact[y0:y1, x0:x1] = grid.to_region(grid.soften(0.5 * ry))
     factor = light.share * lit + (1.0 - light.share) * (1.0 - CONTACT_STRENGTH * contact)
     factor = np.clip(factor, 0.0, 1.0).astype(np.float32)
     factor[factor > 1.0 - SHADOW_CUTOFF] = 1.0
