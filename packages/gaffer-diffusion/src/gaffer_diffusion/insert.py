@@ -37,51 +37,29 @@ from torch import Tensor
 from gaffer_diffusion._choices import DetailMode, PrepareCompat, ShadowMode
 from gaffer_diffusion.conditioning import RelightingConditions, lighting_from_envmap
 from gaffer_diffusion.errors import ConfigError, InputValueError
-from gaffer_diffusion.insert_geometry import (
-    LEVEL_CAMERA,
-    BackgroundCamera,
-    DominantLight,
-    InsertLighting,
-    KeyLight,
-    ObjectExtent,
-    PlacedObject,
-    Placement,
-    cast_shadow_2d,
-    composite,
-    default_placement,
-    dominant_light,
-    inverse_tone,
-    light_from_photo,
-    object_extent,
-    place_object,
-    resolve_placement,
-)
+
+# the geometry, lighting and shadow, importable from here too (documented in insert_geometry)
+from gaffer_diffusion.insert_geometry import LEVEL_CAMERA as LEVEL_CAMERA
+from gaffer_diffusion.insert_geometry import BackgroundCamera as BackgroundCamera
+from gaffer_diffusion.insert_geometry import DominantLight as DominantLight
+from gaffer_diffusion.insert_geometry import InsertLighting as InsertLighting
+from gaffer_diffusion.insert_geometry import KeyLight as KeyLight
+from gaffer_diffusion.insert_geometry import ObjectExtent as ObjectExtent
+from gaffer_diffusion.insert_geometry import PlacedObject as PlacedObject
+from gaffer_diffusion.insert_geometry import Placement as Placement
+from gaffer_diffusion.insert_geometry import cast_shadow_2d as cast_shadow_2d
+from gaffer_diffusion.insert_geometry import composite as composite
+from gaffer_diffusion.insert_geometry import default_placement as default_placement
+from gaffer_diffusion.insert_geometry import dominant_light as dominant_light
+from gaffer_diffusion.insert_geometry import inverse_tone as inverse_tone
+from gaffer_diffusion.insert_geometry import light_from_photo as light_from_photo
+from gaffer_diffusion.insert_geometry import object_extent as object_extent
+from gaffer_diffusion.insert_geometry import place_object as place_object
+from gaffer_diffusion.insert_geometry import resolve_placement as resolve_placement
 from gaffer_diffusion.photo import Photo, PreparedPhoto, relit_object
 from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
 
-__all__ = [
-    "LEVEL_CAMERA",
-    "BackgroundCamera",
-    "DominantLight",
-    "InsertConfig",
-    "InsertLighting",
-    "InsertResult",
-    "KeyLight",
-    "ObjectExtent",
-    "PlacedObject",
-    "Placement",
-    "cast_shadow_2d",
-    "composite",
-    "default_placement",
-    "dominant_light",
-    "insert_object",
-    "inverse_tone",
-    "light_from_photo",
-    "object_extent",
-    "place_object",
-    "relight_under",
-    "resolve_placement",
-]
+__all__ = ["InsertConfig", "InsertResult", "insert_object", "relight_under"]
 
 
 @dataclass(frozen=True, kw_only=True)
