@@ -214,6 +214,13 @@ def test_cli_save_envmap_round_trips(files, tmp_path) -> None:
     b = tmp_path / "b.png"
     assert _run(files, b, *common, "--envmap", str(env)) == 0
     assert np.array_equal(_read(a), _read(b))
+    # a map saved in another folder than the picture is the same map
+    other = tmp_path / "maps" / "light.exr"
+    assert (
+        _run(files, tmp_path / "c.png", *common, "--envmap", str(env), "--save-envmap", str(other))
+        == 0
+    )
+    np.testing.assert_array_equal(read_envmap(other).radiance_linear, saved.radiance_linear)
     # with shadow none only the object's pixels change
     changed = (_read(a) != _read(files["bg"])).any(-1)
     covered = _placed().full_alpha(H, W) > 0

@@ -238,12 +238,18 @@ def _insert(args: argparse.Namespace) -> int:
         config=InsertConfig(shadow=args.shadow, detail=args.detail, compat=compat, seed=args.seed),
     )
     seconds = time.perf_counter() - start
-    if args.save_envmap is not None:
-        from gaffer_envmap.io import write_envmap
+    from gaffer_envmap.io import write_envmap
 
-        write_envmap(args.save_envmap, lighting.envmap)  # atomic: complete or absent
-    with write_with_outputs(args.out.parent, [read]) as stage:  # the image and an estimated mask
+    save = args.save_envmap
+    together = save is not None and save.absolute().parent == args.out.absolute().parent
+    if save is not None and not together:  # another folder: written first, atomically
+        save.parent.mkdir(parents=True, exist_ok=True)
+        write_envmap(save, lighting.envmap)
+    # the image, an estimated mask and (in the same folder) the map: all moved in, or none
+    with write_with_outputs(args.out.parent, [read]) as stage:
         _save_png(stage / args.out.name, result.image)
+        if together and save is not None:
+            write_envmap(stage / save.name, lighting.envmap)
     light = result.light
     shadow = (
         f"shadow: {args.shadow} from {light.source} ({light.share:.0%} of the ground's light)"
