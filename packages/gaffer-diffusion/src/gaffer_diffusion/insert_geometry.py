@@ -582,8 +582,11 @@ def resolve_placement(
         )
     if placement.height_px > fits + 1e-6:
         where = "above the top" if fy <= min(fx, w - fx) / half_w_per_px else "past a side"
+        given = (
+            "" if "--height" not in placement.chosen else " (its height in its photo, the default)"
+        )
         raise InputValueError(
-            f"`--height` {placement.height_px:g} does not fit: at `--at` {x:g},{y:g} the object "
+            f"`--height` {placement.height_px:g}{given} does not fit: at `--at` {x:g},{y:g} the object "
             f"({extent.width}x{extent.height} px in its photo) would reach {where} of the "
             f"{w}x{h} background; pass `--height` {math.floor(fits)} or less, or move it with "
             "`--at`."
