@@ -362,3 +362,22 @@ def test_a_background_with_exif_rotation_is_placed_as_displayed(files, tmp_path)
     argv = ["insert", str(OBJECT), "--into", str(tmp_path / "turned.jpg"), "--out", str(out)]
     assert main([*argv, "--at", "100,180", "--height", "40", "--shadow", "none"]) == 0
     assert _read(out).shape == (W, H, 3)  # 150 wide, 200 tall, as displayed
+
+
+@pytest.mark.parametrize("kind", ["rgba", "grey16"])
+def test_composite_keeps_the_bytes_of_other_kinds_of_background(tmp_path, kind) -> None:
+    rng = np.random.default_rng(0)
+    if kind == "rgba":
+        arr = rng.integers(0, 256, (H, W, 4), dtype=np.uint8)
+    else:
+        arr = rng.integers(0, 65536, (H, W), dtype=np.uint16)
+    Image.fromarray(arr).save(tmp_path / "bg.png")
+    background = read_photo(tmp_path / "bg.png")
+    placed = _placed()
+    shadow = _shadow_for(90.0)
+    out = ins.composite(background, placed, shadow)
+    assert out.shape == (H, W, 3)
+    keep = (shadow == 1.0) & (placed.full_alpha(H, W) == 0)
+    assert keep.sum() > 0.6 * H * W
+    assert np.array_equal(out[keep], background.rgb_u8[keep])
+    assert (out[~keep] != background.rgb_u8[~keep]).any()
