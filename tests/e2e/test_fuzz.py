@@ -238,6 +238,11 @@ CASES: list[Case] = [
        words="`--save-envmap`"),
     _c(G, "insert-out-is-background", "insert {F}/good.png --into {F}/opaque.png --out {F}/opaque.png",
        words="`--into`"),
+    _c(G, "insert-sun-at-no-heading",
+       f"insert {INS} --sun-at 48.86,2.29,2026-06-21T17:00+02:00 --out o.png",
+       words="`--camera-heading"),
+    _c(G, "insert-sun-at-night",
+       f"insert {INS} --sun-at 48.86,2.29,2026-06-21T23:30+02:00 --camera-heading 0 --out o.png"),
     _c(G, "insert-default", f"insert {INS} --out o.png --save-envmap e.exr", expect="handle"),
     _c(G, "relight-rgb-jpeg", f"relight {{F}}/photo.jpg {LIGHT} --out o.png", expect="handle"),
     # --- gaffer-nerf --------------------------------------------------------------------------

@@ -381,3 +381,43 @@ def test_composite_keeps_the_bytes_of_other_kinds_of_background(tmp_path, kind) 
     assert keep.sum() > 0.6 * H * W
     assert np.array_equal(out[keep], background.rgb_u8[keep])
     assert (out[~keep] != background.rgb_u8[~keep]).any()
+
+
+def test_sun_at_places_the_key_light_at_the_sun_seen_along_the_camera_heading() -> None:
+    pytest.importorskip("astral")
+    from datetime import datetime
+
+    from gaffer_diffusion.cli import _parser
+    from gaffer_diffusion.cli.insert import SUN_SIZE_DEG, _key_light
+    from gaffer_envmap.sun_position import sun_position_at
+
+    when = "2026-06-21T17:00+02:00"
+    args = _parser().parse_args(
+        ["insert", "o.png", "--into", "b.png", "--out", "x.png", "--sun-at",
+         f"48.86,2.29,{when}", "--camera-heading", "180"]
+    )  # fmt: skip
+    key = _key_light(args)
+    sun = sun_position_at(48.86, 2.29, datetime.fromisoformat(when))
+    assert key is not None and key.size_deg == SUN_SIZE_DEG
+    assert key.azimuth_deg == pytest.approx((sun.azimuth_deg - 180.0) % 360.0)
+    assert key.elevation_deg == pytest.approx(sun.elevation_deg)
+    # the afternoon sun is in the west: to the right of a camera looking south
+    assert 0 < key.azimuth_deg < 180
+
+
+@pytest.mark.parametrize(
+    ("extra", "words"),
+    [
+        (["--sun-at", "48.86,2.29,2026-06-21T17:00+02:00"], "`--camera-heading"),
+        (["--camera-heading", "10"], "`--sun-at"),
+        (["--sun-at", "48.86,2.29,2026-06-21T23:00+02:00", "--camera-heading", "0"], "below"),
+        (["--sun-at", "48.86,2.29,2026-06-21T17:00", "--camera-heading", "0"], "UTC offset"),
+        (["--sun-at", "48.86,2.29,2026-06-21T17:00Z", "--envmap", "city"], "`--sun-at`"),
+    ],
+)
+def test_sun_at_refusals(files, tmp_path, capsys, extra, words) -> None:
+    pytest.importorskip("astral")
+    assert _run(files, tmp_path / "o.png", *extra) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert list(tmp_path.iterdir()) == []

@@ -466,8 +466,8 @@ def dominant_light(env: EnvironmentMap, key_light: KeyLight | None = None) -> Do
             direction_world=d,
             share=float(np.clip(share, 0.0, 1.0)),
             size_deg=key_light.size_deg,
-            source=f"the key light (azimuth {key_light.azimuth_deg:g}, elevation "
-            f"{key_light.elevation_deg:g})",
+            source=f"the key light (azimuth {key_light.azimuth_deg:.1f}, elevation "
+            f"{key_light.elevation_deg:.1f})",
         )
     up = dirs[:, 2] > math.sin(math.radians(1.0))
     cand = dirs[up]

@@ -73,12 +73,51 @@ class _Checked:
     key_light: KeyLight | None
 
 
+SUN_SIZE_DEG = 0.53
+"""The sun's angular diameter, degrees: the size of a `--sun-at` key light."""
+
+
 def _key_light(args: argparse.Namespace) -> KeyLight | None:
-    if args.key_light is None:
-        return None
+    """`--key-light`, or the sun of `--sun-at` seen from a camera looking along `--camera-heading`."""
     from gaffer_diffusion.insert_geometry import KeyLight
 
-    return KeyLight(**dict(zip(("azimuth_deg", "elevation_deg", "strength", "size_deg"), args.key_light, strict=False)))  # fmt: skip
+    sun_at = getattr(args, "sun_at", None)
+    heading = getattr(args, "camera_heading", None)
+    if sun_at is None:
+        if heading is not None:
+            raise ConfigError("`--camera-heading` goes with `--sun-at LAT,LON,TIME`; pass both.")
+        if args.key_light is None:
+            return None
+        names = ("azimuth_deg", "elevation_deg", "strength", "size_deg")
+        return KeyLight(**dict(zip(names, args.key_light, strict=False)))
+    if args.key_light is not None:
+        raise ConfigError("Pass `--key-light` or `--sun-at`, not both (both place the key light).")
+    if heading is None or args.w2c is not None:
+        raise ConfigError(
+            "`--sun-at` needs `--camera-heading DEG` (the compass bearing the background camera "
+            "looks along), and no `--w2c`."
+        )
+    checks.finite("--camera-heading", heading)
+    from gaffer_envmap.sun_position import parse_place, parse_time, sun_position_at
+
+    parts = sun_at.split(",", 2)
+    if len(parts) != 3:
+        raise ConfigError(
+            f"`--sun-at` {sun_at!r} is not LAT,LON,TIME; e.g. 48.86,2.29,2026-06-21T17:00+02:00."
+        )
+    lat, lon = parse_place(",".join(parts[:2]), "--sun-at")
+    sun = sun_position_at(lat, lon, parse_time(parts[2], "--sun-at"))
+    if sun.elevation_deg <= 0:
+        raise InputValueError(
+            f"`--sun-at` {sun_at}: the sun is {-sun.elevation_deg:.1f} degrees below the horizon "
+            "then; pass a daytime, or place the light with `--key-light AZ,EL`."
+        )
+    # the default camera looks along world +y: the sun's bearing relative to the camera's
+    return KeyLight(
+        azimuth_deg=(sun.azimuth_deg - heading) % 360.0,
+        elevation_deg=sun.elevation_deg,
+        size_deg=SUN_SIZE_DEG,
+    )
 
 
 def _shown_size(flag: str, path: Path) -> tuple[int, int]:
@@ -141,9 +180,10 @@ def _validate_insert(args: argparse.Namespace) -> _Checked:
             "Pass `--envmap` (a map you have) or `--light-from-photo` (the map built from the "
             "background), not both."
         )
-    if args.envmap is not None and args.key_light is not None:
+    if args.envmap is not None and (args.key_light is not None or args.sun_at is not None):
+        flag = "--key-light" if args.key_light is not None else "--sun-at"
         raise ConfigError(
-            "`--key-light` adds a key light to the map built from the background "
+            f"`{flag}` adds a key light to the map built from the background "
             "(`--light-from-photo`); an `--envmap` brings its own light. Drop one of them."
         )
     envmap = None
@@ -191,8 +231,9 @@ def _lighting_for(args: argparse.Namespace, checked: _Checked, background: Photo
         )
     key = checked.key_light
     source = "lighting: the background wrapped onto the sphere (--light-from-photo) + " + (
-        f"a key light at azimuth {key.azimuth_deg:g}, elevation {key.elevation_deg:g}, "
-        f"strength {key.strength:g}, {key.size_deg:g} degrees"
+        f"{'the sun of --sun-at' if args.sun_at else 'a key light'} at azimuth "
+        f"{key.azimuth_deg:.1f}, elevation {key.elevation_deg:.1f}, strength {key.strength:g}, "
+        f"{key.size_deg:g} degrees"
         if key is not None
         else "no key light: the photo rarely shows its key light; give it with `--key-light AZ,EL`"
     )

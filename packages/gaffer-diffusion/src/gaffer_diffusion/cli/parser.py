@@ -528,6 +528,19 @@ def _add_insert_command(sub: Any) -> None:
         "diameter (default 5). Give it: the photo rarely shows its key light",
     )
     light.add_argument(
+        "--sun-at",
+        metavar="LAT,LON,TIME",
+        help="the key light is the sun seen from this place at this time (decimal degrees, north and "
+        "east positive; ISO 8601 with a UTC offset, e.g. 48.86,2.29,2026-06-21T17:00+02:00; needs "
+        'astral: pip install "gaffer-envmap[sky]"), with --camera-heading',
+    )
+    light.add_argument(
+        "--camera-heading",
+        type=float,
+        help="with --sun-at: the compass bearing the background camera looks along, degrees "
+        "clockwise from north (0 north, 90 east)",
+    )
+    light.add_argument(
         "--save-envmap", type=Path, help="write the lighting used here (.exr, Blender convention)"
     )
     light.add_argument(
