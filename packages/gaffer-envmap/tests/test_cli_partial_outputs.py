@@ -83,14 +83,16 @@ def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> No
     sky = tmp_path / "big.exr"
     write_envmap(sky, disc_sun_map(256, np.array([0.0, 1.0, 0.5]), 5.0, 500.0, sky=0.3))
     # 1024 maps of 256 rows: long enough to be caught in the middle
-    proc = subprocess.Popen(
-        [
-            *(sys.executable, "-m", "gaffer_envmap.cli", "augment", str(sky)),
-            *("--out-dir", str(out), "--flips", "--yaw-steps", "512"),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    log = tmp_path / "augment.stderr"  # a file, not a pipe: a full pipe would stall the writer
+    with log.open("wb") as err:
+        proc = subprocess.Popen(
+            [
+                *(sys.executable, "-m", "gaffer_envmap.cli", "augment", str(sky)),
+                *("--out-dir", str(out), "--flips", "--yaw-steps", "512"),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+        )
     deadline = time.monotonic() + 120
     staged = 0
     while time.monotonic() < deadline and proc.poll() is None:
@@ -99,8 +101,10 @@ def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> No
         if staged >= 3:
             break
         time.sleep(0.02)
-    if proc.poll() is not None:
-        pytest.skip("augment finished before it could be killed")
+    # issue 34: this used to skip, so a crash at start-up read as a skip. Writing 1024 maps takes
+    # far longer than the 20 ms poll that sees the third staged file, so an exit here is a failure.
+    rc = proc.poll()
+    assert rc is None, f"augment exited with {rc} before it could be killed:\n{log.read_text()}"
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert staged >= 3
