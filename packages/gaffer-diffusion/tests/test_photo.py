@@ -206,9 +206,103 @@ def test_sam_checkpoint_without_segment_anything_is_one_line(tmp_path, monkeypat
         cli._check_photo_flags(args)
 
 
-def test_sam_mask_with_segment_anything(tmp_path) -> None:
+class _FakeSam:
+    """A stand-in for `segment_anything` (no weights here): records what `sam_mask` asks of it and
+    answers three masks whose scores make the second the best."""
+
+    def __init__(self) -> None:
+        self.calls: dict[str, object] = {}
+        self.masks = np.zeros((3, 40, 60), dtype=bool)
+        self.masks[1, 10:30, 15:45] = True
+        self.sam_model_registry = {k: self._builder(k) for k in ("vit_h", "vit_l", "vit_b")}
+
+    def _builder(self, kind: str):
+        def build(checkpoint: str) -> str:
+            self.calls["kind"], self.calls["checkpoint"] = kind, checkpoint
+            return f"model-{kind}"
+
+        return build
+
+    def SamPredictor(self, model: str):
+        fake = self
+
+        class Predictor:
+            def set_image(self, image: np.ndarray) -> None:
+                fake.calls["image_shape"] = image.shape
+
+            def predict(self, box: np.ndarray, multimask_output: bool):
+                fake.calls["box"], fake.calls["multimask"] = tuple(box.tolist()), multimask_output
+                return fake.masks, np.array([0.2, 0.9, 0.5]), None
+
+        fake.calls["model"] = model
+        return Predictor()
+
+
+@pytest.fixture
+def fake_sam(monkeypatch) -> _FakeSam:
+    import sys
+    import types
+
+    fake = _FakeSam()
+    module = types.ModuleType("segment_anything")
+    module.SamPredictor = fake.SamPredictor  # type: ignore[attr-defined]
+    module.sam_model_registry = fake.sam_model_registry  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "segment_anything", module)
+    return fake
+
+
+def test_sam_mask_refuses_a_missing_checkpoint(tmp_path, fake_sam: _FakeSam) -> None:
+    from gaffer_diffusion.automask import sam_mask
+
+    rgb, _ = _scene(40, 60)
+    with pytest.raises(InputValueError, match=r"`--sam-checkpoint` .*sam_vit_b\.pth is not a file"):
+        sam_mask(rgb, tmp_path / "sam_vit_b.pth")
+    assert fake_sam.calls == {}  # refused before any model is built
+
+
+def test_sam_mask_without_segment_anything_names_the_install(tmp_path, monkeypatch) -> None:
+    import sys
+
+    from gaffer_diffusion.automask import sam_mask
+
+    monkeypatch.setitem(sys.modules, "segment_anything", None)  # import raises ImportError
+    rgb, _ = _scene(40, 60)
+    with pytest.raises(MissingDependencyError, match="pip install segment-anything"):
+        sam_mask(rgb, tmp_path / "sam.pth")
+
+
+@pytest.mark.parametrize(
+    ("name", "kind"), [("sam_vit_b_01ec64.pth", "vit_b"), ("sam.pth", "vit_h")]
+)
+def test_sam_mask_prompts_the_centred_box_and_keeps_the_best_mask(
+    tmp_path, fake_sam: _FakeSam, name: str, kind: str
+) -> None:
+    from gaffer_diffusion.automask import centred_box, sam_mask
+
+    ckpt = tmp_path / name
+    ckpt.write_bytes(b"not read by the fake")
+    rgb, _ = _scene(40, 60)
+    mask = sam_mask(rgb, ckpt)
+    assert fake_sam.calls["kind"] == kind and fake_sam.calls["checkpoint"] == str(ckpt)
+    assert fake_sam.calls["image_shape"] == (40, 60, 3)
+    assert fake_sam.calls["box"] == centred_box(40, 60) and fake_sam.calls["multimask"] is True
+    assert mask.dtype == np.float32 and np.array_equal(mask, fake_sam.masks[1])  # score 0.9 wins
+
+
+@pytest.mark.weights
+def test_sam_mask_with_segment_anything_and_real_weights() -> None:
+    # Only this part needs SAM's weights (GAFFER_SAM_CHECKPOINT, a local .pth): none is downloaded here.
+    import os
+
     pytest.importorskip("segment_anything", reason="segment-anything is not installed")
-    pytest.skip("needs a SAM checkpoint (weights); none is downloaded here")
+    ckpt = os.environ.get("GAFFER_SAM_CHECKPOINT")
+    if not ckpt or not Path(ckpt).is_file():
+        pytest.skip("set GAFFER_SAM_CHECKPOINT to a local Segment Anything checkpoint")
+    from gaffer_diffusion.automask import sam_mask
+
+    rgb, disc = _scene(150, 200)
+    m = sam_mask(rgb, ckpt) > 0.5
+    assert (m & disc).sum() / (m | disc).sum() > 0.9
 
 
 def test_envmap_backdrop_looks_where_the_camera_looks() -> None:
