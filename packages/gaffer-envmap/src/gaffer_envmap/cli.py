@@ -281,6 +281,31 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sources(args: argparse.Namespace) -> int:
+    """List the lighting sources (entry points `gaffer.envmap_sources`); a broken one is listed with
+    its error, never a crash."""
+    from gaffer_envmap.sources import envmap_sources, format_source_list
+
+    entries = envmap_sources()
+    if args.json:
+        rows = [
+            {
+                "name": e.name,
+                "target": e.target,
+                "distribution": e.distribution,
+                "capabilities": list(e.source.capabilities) if e.source else [],
+                "options": list(e.source.options) if e.source else [],
+                "description": e.source.description if e.source else "",
+                "error": e.error,
+            }
+            for e in entries
+        ]
+        print(json.dumps(rows, indent=2))
+    else:
+        print(format_source_list(entries))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (exposed for docs and tests)."""
     p = argparse.ArgumentParser(
@@ -393,6 +418,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.set_defaults(func=_cmd_procedural)
 
     add_sky_parser(sub)
+
+    sp = sub.add_parser(
+        "sources",
+        help="the installed lighting sources (plugins of entry-point group gaffer.envmap_sources)",
+    )
+    sp.add_argument("--json", action="store_true", help="print one JSON list instead of lines")
+    sp.set_defaults(func=_cmd_sources)
 
     sp = sub.add_parser(
         "demo", help="the embedded default: a bundled CC0 HDRI into camera frames, with pictures"

@@ -1,6 +1,9 @@
 """`gaffer-envmap sky`: a physical sky (or a studio) as an HDR lat-long EXR, from angles, a place and
 a time, or words (issue 32 item 1).
 
+With `--source NAME` the words go to a lighting source instead (`gaffer_envmap.sources`: an installed
+plugin's text-to-HDR model, or the built-in grammar registered as "sky"); `--list-sources` lists them.
+
 The sun's position comes from, in this order: `--sun-elevation` / `--sun-azimuth`; `--at` / `--time`
 (an ephemeris, `gaffer_envmap.sun_position`); the time of day and direction in `--text`; else the
 phrase grammar's default sun. Every argument is checked before anything is computed, and the map is
@@ -9,8 +12,10 @@ written atomically, so a refusal leaves nothing behind.
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from gaffer_envmap.cli_support import check_output_file
 from gaffer_envmap.errors import GafferEnvmapError, ParameterError
@@ -25,7 +30,7 @@ from gaffer_envmap.sky import (
 )
 from gaffer_envmap.studio import StudioConfig
 
-__all__ = ["add_sky_parser", "cmd_sky"]
+__all__ = ["ListSourcesAction", "add_sky_parser", "cmd_sky"]
 
 MAX_WIDTH = 16384
 """Largest `--width`: a 16384 x 8192 float32 map is 1.6 GB; beyond that is a typo."""
@@ -68,7 +73,48 @@ def _albedo(text: str) -> tuple[float, float, float]:
         ) from None
     if len(vals) not in (1, 3) or not all(math.isfinite(v) and 0.0 <= v <= 1.0 for v in vals):
         raise argparse.ArgumentTypeError(f"expected one value or R,G,B in [0, 1], got {text!r}")
-    return (vals[0],) * 3 if len(vals) == 1 else (vals[0], vals[1], vals[2])
+    return (vals[0], vals[0], vals[0]) if len(vals) == 1 else (vals[0], vals[1], vals[2])
+
+
+class ListSourcesAction(argparse.Action):
+    """`--list-sources`: print the installed lighting sources (`gaffer_envmap.sources`) and exit 0,
+    like `--version` (no other argument is needed)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs: Any) -> None:
+        kwargs.setdefault("help", "list the installed lighting sources (entry points) and exit")
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        from gaffer_envmap.sources import format_source_list
+
+        print(format_source_list())
+        parser.exit(0)
+
+
+def add_source_arguments(
+    parser: "argparse.ArgumentParser | argparse._ArgumentGroup", prefix: str = ""
+) -> None:
+    """`--{prefix}source NAME`, `--{prefix}source-option KEY=VALUE` and `--list-sources`."""
+    parser.add_argument(
+        f"--{prefix}source",
+        metavar="NAME",
+        help="a lighting source installed as a plugin (entry-point group gaffer.envmap_sources; "
+        "built in: sky), e.g. a text-to-HDR model (--list-sources lists them; "
+        "docs/tutorials/skies.md)",
+    )
+    parser.add_argument(
+        f"--{prefix}source-option",
+        action="append",
+        metavar="KEY=VALUE",
+        help="an option of the source, repeatable (e.g. weights=/models/text2light: a local path)",
+    )
+    parser.add_argument("--list-sources", action=ListSourcesAction)
 
 
 def add_sky_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
@@ -139,6 +185,7 @@ def add_sky_parser(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -
     )
     sp.add_argument("--no-sun-disc", action="store_true", help="leave the sun's disc out")
     sp.add_argument("--preview", metavar="PNG", help="also write a tone-mapped sRGB preview (.png)")
+    add_source_arguments(sp)
     sp.set_defaults(func=cmd_sky)
 
 
@@ -224,11 +271,51 @@ def _resolve_sun(args: argparse.Namespace, reading: object, out: list[str]) -> S
     )
 
 
-def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig:
+@dataclass(frozen=True, kw_only=True)
+class _SourcePlan:
+    """`--source NAME`: the loaded source and its checked options."""
+
+    source: Any  # gaffer_envmap.sources.EnvmapSource
+    options: dict[str, str]
+
+    def describe(self) -> str:
+        return f"source {self.source.name}"
+
+
+def _plan_source(args: argparse.Namespace) -> _SourcePlan:
+    """`--source`: the words go to a lighting source; the grammar's own flags do not apply."""
+    from gaffer_envmap.sources import load_envmap_source, parse_source_options
+
+    if args.source is None:
+        raise GafferEnvmapError(
+            "`--source-option` goes with `--source NAME`; pass the source, or drop the option."
+        )
+    if args.text is None:
+        raise GafferEnvmapError(
+            f"`--source` {args.source!r} needs `--text PHRASE` (the words it turns into a map)."
+        )
+    for flag, dest in (*_SKY_ONLY_FLAGS, ("--exposure", "exposure"), ("--strict", "strict")):
+        if getattr(args, dest) not in (None, False):
+            raise GafferEnvmapError(
+                f"`{flag}` applies to the built-in grammar, not to `--source {args.source}`; drop "
+                "it (a source takes its own settings as --source-option KEY=VALUE)."
+            )
+    source = load_envmap_source(args.source)
+    if "text" not in source.capabilities:
+        raise GafferEnvmapError(
+            f"`--source` {args.source!r} estimates light from a photo, not from words; use it "
+            f"with gaffer-diffusion insert --light-source {args.source}."
+        )
+    return _SourcePlan(source=source, options=parse_source_options(args.source_option, source))
+
+
+def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig | _SourcePlan:
     """Every check and the scene to draw, before any pixel is computed."""
     check_output_file("--out", args.out, suffixes=(".exr",))  # before any work (issue 36)
     if args.preview is not None:
         check_output_file("--preview", args.preview, suffixes=(".png",))
+    if args.source is not None or args.source_option:
+        return _plan_source(args)
     _check_sources(args)
     exposure = DEFAULT_EXPOSURE_EV if args.exposure is None else args.exposure
     reading = None
@@ -273,7 +360,8 @@ def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig:
         sun=sun,
         model=args.model or model,
         turbidity=turbidity if args.turbidity is None else args.turbidity,
-        ground_albedo=args.ground_albedo or (DEFAULT_GROUND_ALBEDO,) * 3,
+        ground_albedo=args.ground_albedo
+        or (DEFAULT_GROUND_ALBEDO, DEFAULT_GROUND_ALBEDO, DEFAULT_GROUND_ALBEDO),
         exposure_ev=exposure,
         tint_rgb=tint,
         sun_disc=not args.no_sun_disc,
@@ -288,7 +376,14 @@ def cmd_sky(args: argparse.Namespace) -> int:
     from gaffer_envmap.io_exr import write_exr
     from gaffer_envmap.studio import studio_envmap
 
-    if isinstance(scene, StudioConfig):
+    if isinstance(scene, _SourcePlan):
+        from gaffer_envmap.sources import envmap_from_text
+
+        env = envmap_from_text(scene.source, args.text, width=args.width, options=scene.options)
+        note = env.metadata.get("gaffer:source_note")
+        if note:
+            lines.append(f"note: the map of source {scene.source.name!r}: {note}")
+    elif isinstance(scene, StudioConfig):
         env = studio_envmap(scene, args.width)
     else:
         from gaffer_envmap.sky import sky_envmap

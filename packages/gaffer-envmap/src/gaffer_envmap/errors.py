@@ -72,3 +72,10 @@ class OutputPathError(GafferEnvmapError, ValueError):
 class ParameterError(GafferEnvmapError, ValueError):
     """A lighting parameter is out of range or inconsistent (a sun elevation of 120 degrees, a
     turbidity of 0, a time without a UTC offset); the message names it and the valid range."""
+
+
+class EnvmapSourceError(GafferEnvmapError, ValueError):
+    """A lighting source (`gaffer_envmap.sources`, entry-point group `gaffer.envmap_sources`) is
+    unknown, failed to load, lacks what was asked of it, was given an option it does not take, failed
+    while running, or returned a map that is not a finite, non-negative 2:1 lat-long map. The message
+    names the source and, for an unknown one, the installed ones."""

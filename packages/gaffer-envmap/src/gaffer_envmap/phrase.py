@@ -259,7 +259,7 @@ class PhraseReading:
             sun=sun,
             model=self.model or "preetham",
             turbidity=DEFAULT_TURBIDITY if self.turbidity is None else self.turbidity,
-            ground_albedo=(DEFAULT_GROUND_ALBEDO,) * 3,
+            ground_albedo=(DEFAULT_GROUND_ALBEDO, DEFAULT_GROUND_ALBEDO, DEFAULT_GROUND_ALBEDO),
             exposure_ev=exposure_ev,
             tint_rgb=tint,
         )

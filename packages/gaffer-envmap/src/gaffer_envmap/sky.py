@@ -112,7 +112,7 @@ def _unit_luminance(rgb: np.ndarray) -> np.ndarray:
 
 def _finite(name: str, value: object) -> float:
     try:
-        x = float(value)
+        x = float(value)  # type: ignore[arg-type]  # anything float() refuses is reported below
     except (TypeError, ValueError) as exc:
         raise ParameterError(f"`{name}` must be a number, got {value!r}.") from exc
     if not math.isfinite(x):
@@ -199,7 +199,11 @@ class SkyConfig:
     sun: SunPosition
     model: SkyModel = "preetham"
     turbidity: float | int = DEFAULT_TURBIDITY
-    ground_albedo: tuple[float, float, float] = (DEFAULT_GROUND_ALBEDO,) * 3
+    ground_albedo: tuple[float, float, float] = (
+        DEFAULT_GROUND_ALBEDO,
+        DEFAULT_GROUND_ALBEDO,
+        DEFAULT_GROUND_ALBEDO,
+    )
     exposure_ev: float | int = DEFAULT_EXPOSURE_EV
     tint_rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
     sun_disc: bool = True

@@ -6,6 +6,8 @@ paths they check.
 """
 
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
@@ -153,3 +155,43 @@ def angle_deg(a: npt.ArrayLike, b: npt.ArrayLike) -> float:
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     c = a @ b / (np.linalg.norm(a) * np.linalg.norm(b))
     return math.degrees(math.acos(float(np.clip(c, -1, 1))))
+
+
+def write_plugin_distribution(
+    folder: "str | os.PathLike[str]",
+    *,
+    name: str,
+    entry_points: dict[str, str],
+    modules: dict[str, str] | None = None,
+    group: str = "gaffer.envmap_sources",
+    version: str = "1.0",
+) -> Path:
+    """Write an installed-looking distribution into `folder` (no pip, no venv: a few milliseconds).
+
+    `folder` gets each `modules` entry as `<module>.py` and a `<name>-<version>.dist-info/` with
+    `METADATA` and `entry_points.txt` registering `entry_points` ({entry name: "module:attribute"})
+    in `group`. Put `folder` on `sys.path` (pytest: `monkeypatch.syspath_prepend(folder)`) and
+    `importlib.metadata` finds the distribution and its entry points, as it would an installed plugin.
+
+    Returns:
+        The `*.dist-info` folder.
+
+    Example:
+        >>> import importlib.metadata, sys, tempfile
+        >>> tmp = tempfile.mkdtemp()
+        >>> _ = write_plugin_distribution(tmp, name="demo-plugin", entry_points={"demo": "demo_mod:SOURCE"})
+        >>> sys.path.insert(0, tmp)
+        >>> [ep.value for ep in importlib.metadata.entry_points(group="gaffer.envmap_sources", name="demo")]
+        ['demo_mod:SOURCE']
+        >>> sys.path.remove(tmp)
+    """
+    root = Path(folder)
+    root.mkdir(parents=True, exist_ok=True)
+    for module, source in (modules or {}).items():
+        (root / f"{module}.py").write_text(source)
+    dist = root / f"{name.replace('-', '_')}-{version}.dist-info"
+    dist.mkdir(exist_ok=True)
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {name}\nVersion: {version}\n")
+    lines = [f"[{group}]", *(f"{k} = {v}" for k, v in entry_points.items())]
+    (dist / "entry_points.txt").write_text("\n".join(lines) + "\n")
+    return dist
