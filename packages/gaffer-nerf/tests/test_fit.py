@@ -28,9 +28,14 @@ def test_fit_reaches_a_useful_psnr_and_shrinks_the_box(fitted, scene) -> None:
     psnr = heldout_psnr(fitted.field, scene.test_input.cameras.rays(), scene.test_input.rgb_flat())
     assert psnr > 22.0, psnr  # ~26 dB in ~4 s on one core; a blank white image scores ~9 dB
     assert rep.iterations_run == 120 and not rep.stopped_early
-    # the box never grows, and the first alpha mask's shrink kept the sphere (radius 0.5) inside it
+    # The first alpha mask (the preset's threshold, alpha 1e-4) shrinks the box: the box never grows,
+    # at least one face moves in by a voxel of the 12^3 grid (0.2), and the sphere (radius 0.5) stays
+    # inside. How far it shrinks is seed luck at 1e-4: faint floaters hold faces out; measured over
+    # seeds 0-5, the volume fell from 8 to 2.7-7.2 (seed 1 moved only the -z face, 2 x 2 x 1.8), so
+    # 7.2 is the bound every seed meets. The shrink to the sphere itself is tested below at 3e-3.
     box = fitted.field.aabb
     assert float(box.min()) >= -1.0 and float(box.max()) <= 1.0
+    assert float((box[1] - box[0]).prod()) <= 2.0 * 2.0 * 1.8 + 1e-4, box
     assert bool((box[0] <= -0.45).all()) and bool((box[1] >= 0.45).all()), box
     assert len(rep.grid_history) == 4 and rep.final_grid == fitted.field.grid_size
     assert rep.grid_bytes == fitted.field.grid_memory_bytes() > 0
@@ -108,21 +113,28 @@ def test_early_stopping_stops_on_a_plateau(scene) -> None:
         fit_tensorf(scene.train, quick_fit_config(early_stopping=es))
 
 
-def test_rank_selection_fits_the_ladder_and_keeps_the_rung_it_chose() -> None:
-    # Whether doubling the ranks pays on this sphere at 120 steps is seed luck: measured against 4/8
-    # (~27 dB), the 8/16 rung scored +2.5 dB on seed 0 and +0.1 on seed 1 with the tiny preset's
-    # density L1, and -0.8 / +1.0 dB with TensoRF's (8e-5 / 4e-5). So this test fixes the
-    # choice with a tolerance no rung can beat (50 dB) and checks the ladder around it: the rungs'
-    # ranks and sizes, that it stops after two fits without trying x4, and that the field returned is
-    # the chosen rung's. `choose_rank_rung` itself is tested on given PSNRs below.
-    env = scene_envmap(0)
-    train = sphere_viewset(orbit_cameras(8), env, plain=True)
-    heldout = sphere_viewset(orbit_cameras(3, offset_deg=67.0), env, plain=True)
-    sel = RankSelectionConfig(ladder=(1.0, 2.0, 4.0), tolerance_db=50.0, max_rays=4000)
-    res = fit_tensorf(train, quick_fit_config(rank_selection=sel), heldout=heldout)
+def test_rank_selection_climbs_past_a_starved_rung_and_stops_where_doubling_gains_little(
+    scene,
+) -> None:
+    # Tolerances the scores decide. Measured on this painted sphere at 120 steps, seeds 0-3, on the
+    # same 4000 held-out rays: 1/1 ranks 22.5-23.7 dB, 4/8 26.0-28.0, 8/16 27.9-29.9. 4/8 beats 1/1
+    # by 3.1-5.4 dB, so at the default tolerance (0.25 dB) the climb must go past 1/1. 8/16 beats 4/8
+    # by 0.6-2.0 dB (on the unpainted sphere -1.0 to +2.5: seed luck), so with 3 dB (what a starved
+    # rung loses) the climb must stop at 4/8, after two fits, without trying x4.
+    climb = RankSelectionConfig(ladder=(0.125, 1.0), tolerance_db=0.25, max_rays=4000)
+    res = fit_tensorf(scene.train, quick_fit_config(rank_selection=climb), heldout=scene.test_input)
+    rs = res.report.rank_selection
+    assert rs is not None and rs.chosen == 1 and len(rs.rungs) == 2, rs
+    starved, kept = rs.rungs
+    assert (starved.density_ranks, starved.appearance_ranks) == ((1, 1, 1), (1, 1, 1))
+    assert kept.heldout_psnr > starved.heldout_psnr + 2.0, rs  # far above the tolerance
+    assert res.field.config.appearance_ranks == (8, 8, 8) and rs.chosen_rung is kept
+
+    stop = RankSelectionConfig(ladder=(1.0, 2.0, 4.0), tolerance_db=3.0, max_rays=4000)
+    res = fit_tensorf(scene.train, quick_fit_config(rank_selection=stop), heldout=scene.test_input)
     rs = res.report.rank_selection
     assert rs is not None and rs.chosen == 0 and len(rs.rungs) == 2, rs
-    assert rs.chosen == choose_rank_rung([r.heldout_psnr for r in rs.rungs], sel.tolerance_db)
+    assert rs.chosen == choose_rank_rung([r.heldout_psnr for r in rs.rungs], stop.tolerance_db)
     small, large = rs.rungs
     assert (small.density_ranks, small.appearance_ranks) == ((4, 4, 4), (8, 8, 8))
     assert (large.density_ranks, large.appearance_ranks) == ((8, 8, 8), (16, 16, 16))
@@ -133,7 +145,7 @@ def test_rank_selection_fits_the_ladder_and_keeps_the_rung_it_chose() -> None:
     assert res.report.seconds >= small.seconds + large.seconds
     assert res.report.final_grid == res.field.grid_size
     with pytest.raises(ConfigError, match="rank_selection"):
-        fit_tensorf(train, quick_fit_config(rank_selection=sel))
+        fit_tensorf(scene.train, quick_fit_config(rank_selection=stop))
 
 
 def test_choose_rank_rung_and_ladder_validation() -> None:
