@@ -87,6 +87,12 @@ _EXPORTS: dict[str, str] = {
     "sun_direction": "sky",
     "sun_position_at": "sun_position",
     "yaw_roll": "augment",
+    "EnvmapSource": "sources",
+    "EnvmapSourceError": "errors",
+    "envmap_from_photo": "sources",
+    "envmap_from_text": "sources",
+    "envmap_sources": "sources",
+    "load_envmap_source": "sources",
 }
 
 
@@ -131,6 +137,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_envmap.errors import (
         ConventionError,
         EnvmapReadError,
+        EnvmapSourceError,
         EnvmapWriteError,
         GafferEnvmapError,
         GafferError,
@@ -157,6 +164,13 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_envmap.sanitize import SanitizeReport, sanitize
     from gaffer_envmap.sh import directionality, irradiance, project_sh, reconstruct_sh, sh_basis
     from gaffer_envmap.sky import SkyConfig, SunPosition, sky_envmap, sun_direction
+    from gaffer_envmap.sources import (
+        EnvmapSource,
+        envmap_from_photo,
+        envmap_from_text,
+        envmap_sources,
+        load_envmap_source,
+    )
     from gaffer_envmap.stats import describe, first_moment, mean_light_direction, total_power
     from gaffer_envmap.studio import StudioConfig, StudioLight, studio_envmap
     from gaffer_envmap.sun_position import sun_position_at
@@ -171,6 +185,8 @@ __all__ = [
     "ConventionError",
     "EnvironmentMap",
     "EnvmapReadError",
+    "EnvmapSource",
+    "EnvmapSourceError",
     "EnvmapWriteError",
     "GafferEnvmapError",
     "GafferError",
@@ -205,6 +221,9 @@ __all__ = [
     "direction_to_uv",
     "directionality",
     "encode_lighting",
+    "envmap_from_photo",
+    "envmap_from_text",
+    "envmap_sources",
     "first_moment",
     "flip_horizontal",
     "get_convention",
@@ -213,6 +232,7 @@ __all__ = [
     "is_compat",
     "latlong_to_cube",
     "ldr_encode",
+    "load_envmap_source",
     "look_at_w2c_blender",
     "mean_light_direction",
     "orbit_w2c_blender",

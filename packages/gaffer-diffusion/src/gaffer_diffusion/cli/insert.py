@@ -65,12 +65,15 @@ def parse_key_light(text: str) -> tuple[float, ...]:
 
 @dataclass(frozen=True, kw_only=True)
 class _Checked:
-    """What the checks read: the background's size, the map of `--envmap` and the key light."""
+    """What the checks read: the background's size, the map of `--envmap`, the key light and the
+    lighting source of `--light-source` with its options."""
 
     background_wh: tuple[int, int]
     envmap: Any  # gaffer_envmap.EnvironmentMap | None
     w2c: Any  # gaffer_envmap.poses.W2CBlender
     key_light: KeyLight | None
+    light_source: Any = None  # gaffer_envmap.sources.EnvmapSource | None (--light-source)
+    light_options: dict[str, str] | None = None
 
 
 SUN_SIZE_DEG = 0.53
@@ -149,6 +152,51 @@ def _check_shadow(mode: str) -> None:
     )
 
 
+def _check_light_source(args: argparse.Namespace) -> tuple[Any, dict[str, str]] | None:
+    """`--light-source NAME` (a plugin, `gaffer_envmap.sources`): loaded, its capability and options
+    checked, and the other lighting flags refused beside it."""
+    if args.light_source is None:
+        for flag, value in (
+            ("--light-text", args.light_text),
+            ("--light-source-option", args.light_source_option),
+        ):
+            if value:
+                raise ConfigError(f"`{flag}` goes with `--light-source NAME`; pass both.")
+        return None
+    for flag, given in (
+        ("--envmap", args.envmap is not None),
+        ("--light-from-photo", args.light_from_photo),
+        ("--key-light", args.key_light is not None),
+        ("--sun-at", args.sun_at is not None),
+    ):
+        if given:
+            raise ConfigError(
+                f"`--light-source` {args.light_source!r} makes the whole lighting; drop `{flag}` "
+                "(or drop --light-source)."
+            )
+    from gaffer_envmap.sources import load_envmap_source, parse_source_options
+
+    source = load_envmap_source(args.light_source, flag="--light-source")
+    if args.light_text is not None and "text" not in source.capabilities:
+        raise ConfigError(
+            f"`--light-source` {source.name!r} reads the background photo, not words; drop "
+            "`--light-text`."
+        )
+    if args.light_text is None and "photo" not in source.capabilities:
+        raise ConfigError(
+            f"`--light-source` {source.name!r} turns words into lighting; pass `--light-text "
+            'PHRASE` (e.g. "golden hour from the left").'
+        )
+    if args.light_text is None and args.w2c is not None:
+        raise ConfigError(
+            f"`--w2c`: the map `--light-source` {source.name!r} estimates from the photo is in the "
+            "background camera's own frame; drop --w2c."
+        )
+    return source, parse_source_options(
+        args.light_source_option, source, flag="--light-source-option"
+    )
+
+
 def _validate_insert(args: argparse.Namespace) -> _Checked:
     """Every flag and file, before torch is imported or a model loads; one line per refusal."""
     from gaffer_envmap.poses import W2CBlender
@@ -191,6 +239,7 @@ def _validate_insert(args: argparse.Namespace) -> _Checked:
         _check_envmap_arg(args.envmap)
         envmap = _read_envmap(args, args.envmap)  # decoded now: an unreadable map fails here
     w2c = W2CBlender.from_array(_read_w2c(args.w2c)) if args.w2c is not None else None
+    light_source = _check_light_source(args)
     key = _key_light(args)
     _check_sampling_args(args)
     _check_model_args(args)
@@ -210,7 +259,14 @@ def _validate_insert(args: argparse.Namespace) -> _Checked:
         check_write_suffix(args.save_envmap, "--save-envmap")
         checks.writable_file("--save-envmap", args.save_envmap)
         checks.not_an_input("--save-envmap", args.save_envmap, [*inputs, ("--out", args.out)])
-    return _Checked(background_wh=(bw, bh), envmap=envmap, w2c=w2c, key_light=key)
+    return _Checked(
+        background_wh=(bw, bh),
+        envmap=envmap,
+        w2c=w2c,
+        key_light=key,
+        light_source=light_source[0] if light_source else None,
+        light_options=light_source[1] if light_source else None,
+    )
 
 
 def _lighting_for(args: argparse.Namespace, checked: _Checked, background: Photo) -> InsertLighting:
@@ -229,6 +285,8 @@ def _lighting_for(args: argparse.Namespace, checked: _Checked, background: Photo
         return InsertLighting(
             envmap=checked.envmap, camera=camera, source=f"lighting: --envmap {args.envmap}"
         )
+    if checked.light_source is not None:
+        return _lighting_from_source(args, checked, background, camera)
     key = checked.key_light
     source = "lighting: the background wrapped onto the sphere (--light-from-photo) + " + (
         f"{'the sun of --sun-at' if args.sun_at else 'a key light'} at azimuth "
@@ -239,6 +297,35 @@ def _lighting_for(args: argparse.Namespace, checked: _Checked, background: Photo
     )
     env = light_from_photo(background.rgb, camera, key)
     return InsertLighting(envmap=env, camera=camera, key_light=key, source=source)
+
+
+def _lighting_from_source(
+    args: argparse.Namespace, checked: _Checked, background: Photo, camera: Any
+) -> InsertLighting:
+    """The map of `--light-source`: from `--light-text`, or estimated from the background photo."""
+    from gaffer_diffusion.insert_geometry import LIGHT_FROM_PHOTO_WIDTH, InsertLighting
+    from gaffer_envmap.sources import envmap_from_photo, envmap_from_text
+
+    source = checked.light_source
+    common = {
+        "width": LIGHT_FROM_PHOTO_WIDTH,
+        "options": checked.light_options,
+        "policy": args.sanitize,
+        "flag": "--light-source",
+    }
+    if args.light_text is not None:
+        env = envmap_from_text(source, args.light_text, **common)
+        what = f"--light-text {args.light_text!r}"
+    else:
+        env = envmap_from_photo(source, background.rgb, fov_deg=args.fov, **common)
+        what = f"the background photo at --fov {args.fov:g}"
+    note = env.metadata.get("gaffer:source_note")
+    return InsertLighting(
+        envmap=env,
+        camera=camera,
+        source=f"lighting: --light-source {source.name} from {what}"
+        + (f" ({note})" if note else ""),
+    )
 
 
 def _placement(args: argparse.Namespace, read: PhotoMask, background: Photo) -> Placement:

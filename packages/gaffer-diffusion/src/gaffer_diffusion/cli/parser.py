@@ -21,6 +21,7 @@ from gaffer_diffusion._choices import (
 )
 from gaffer_diffusion.app.config import add_app_arguments
 from gaffer_diffusion.cli.insert import parse_key_light, parse_xy
+from gaffer_envmap.cli_sky import add_source_arguments
 from gaffer_envmap.cli_support import add_debug_argument, exit_codes_epilog
 from gaffer_envmap.compat_mode import COMPAT_MODES
 from gaffer_envmap.sanitize import add_sanitize_argument
@@ -497,7 +498,8 @@ def _add_insert_command(sub: Any) -> None:
         help=f"the background's horizontal field of view, degrees (default {BACKDROP_FOV_DEG})",
     )
     light = n.add_argument_group(
-        "lighting: --envmap (with the background camera's --w2c) or --light-from-photo (default)"
+        "lighting: --envmap (with the background camera's --w2c), --light-from-photo (default) or "
+        "--light-source NAME (a plugin: a light-estimation or text-to-HDR model)"
     )
     light.add_argument(
         "--envmap",
@@ -539,6 +541,14 @@ def _add_insert_command(sub: Any) -> None:
         type=float,
         help="with --sun-at: the compass bearing the background camera looks along, degrees "
         "clockwise from north (0 north, 90 east)",
+    )
+    add_source_arguments(light, prefix="light-")
+    light.add_argument(
+        "--light-text",
+        metavar="PHRASE",
+        help="with --light-source: the words it turns into the lighting (e.g. --light-source sky "
+        '--light-text "golden hour from the left"); without it a light-estimation source reads '
+        "the background photo",
     )
     light.add_argument(
         "--save-envmap", type=Path, help="write the lighting used here (.exr, Blender convention)"
