@@ -142,6 +142,38 @@ def test_sigterm_saves_and_stops(tmp_path: Path, data_root: Path) -> None:
     assert signal.getsignal(signal.SIGTERM) is not None
 
 
+def test_a_failing_end_training_is_logged_and_counted_and_a_bug_there_propagates(
+    tmp_path: Path,
+    data_root: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # issue 34: every exception around end_training() was suppressed; now only the teardown's own
+    # failures (RuntimeError from torch.distributed, OSError from a tracker) are, logged and counted
+    from accelerate import Accelerator
+
+    def teardown_fails(self) -> None:
+        raise RuntimeError("process group already destroyed")
+
+    monkeypatch.setattr(Accelerator, "end_training", teardown_fails)
+    caplog.set_level("WARNING", logger=loop_mod.__name__)
+    result = train(_config(tmp_path / "e", data_root, train={"max_steps": 1}))
+    assert result.end_training_errors == 1 and result.step == 1
+    assert result.final_model is not None and result.final_model.is_dir()
+    assert any("process group already destroyed" in r.getMessage() for r in caplog.records)
+
+    def bug(self) -> None:
+        raise TypeError("a bug, not a teardown failure")
+
+    monkeypatch.setattr(Accelerator, "end_training", bug)
+    with pytest.raises(TypeError, match="a bug"):
+        train(_config(tmp_path / "f", data_root, train={"max_steps": 1}))
+    monkeypatch.undo()
+    assert (
+        train(_config(tmp_path / "g", data_root, train={"max_steps": 1})).end_training_errors == 0
+    )
+
+
 def test_fresh_start_over_checkpoints_and_resume_without_any_are_refused(
     tmp_path: Path, data_root: Path
 ) -> None:

@@ -26,7 +26,6 @@ progress bar), `validation_hook` (validation during training), `sigterm`. Settin
 the networks and the data stays here.
 """
 
-import contextlib
 import dataclasses
 import logging
 import os
@@ -54,9 +53,7 @@ from gaffer_diffusion.training.dataset import (
     KeySampler,
     RelightTrainDataset,
     TrainBatch,
-    check_lighting_compat,
     collate_items,
-    dataset_object_ids,
     split_object_ids,
 )
 from gaffer_diffusion.training.ema import EMAModel
@@ -64,6 +61,7 @@ from gaffer_diffusion.training.errors import TrainingDivergedError
 from gaffer_diffusion.training.objective import TrainingObjective, cfg_dropout_masks, diffusion_loss
 from gaffer_diffusion.training.objective import _mirror_views as _mirror_views
 from gaffer_diffusion.training.objective import _prediction_target as _prediction_target
+from gaffer_diffusion.training.objects import check_lighting_compat, dataset_object_ids
 from gaffer_diffusion.training.run_log import (
     LogWindow,
     log_due,
@@ -118,6 +116,8 @@ class TrainResult:
         skipped_samples: unreadable samples replaced by the data loader (whole run).
         validations: the validations run by this call.
         seconds: wall time of this call.
+        end_training_errors: 1 when accelerate's `end_training()` (tracker flush, process-group
+            teardown) failed after the results were saved (logged as a warning), else 0.
     """
 
     step: int
@@ -130,6 +130,7 @@ class TrainResult:
     skipped_samples: int
     validations: tuple[ValidationResult, ...]
     seconds: float
+    end_training_errors: int = 0
 
 
 def build_training_model(source: ModelSource) -> NeuralGafferModel:
@@ -474,8 +475,7 @@ def train(
     log.close()
     if state.skipped_samples:
         logger.warning("%d unreadable samples were skipped in this run", state.skipped_samples)
-    with contextlib.suppress(Exception):
-        acc.end_training()
+    end_training_errors = _end_training(acc)
     return TrainResult(
         step=state.step,
         start_step=start_step,
@@ -487,7 +487,29 @@ def train(
         skipped_samples=state.skipped_samples,
         validations=tuple(validations),
         seconds=time.perf_counter() - t_start,
+        end_training_errors=end_training_errors,
     )
+
+
+def _end_training(acc: Any) -> int:
+    """`acc.end_training()` (the trackers' last flush, the process group's teardown): 1 if it failed.
+
+    It runs after the checkpoint and the final model are on disk, so a teardown failure (torch.distributed
+    raises RuntimeError, a tracker's flush OSError) is logged and counted in
+    `TrainResult.end_training_errors` rather than thrown away with a finished run. Anything else is a
+    bug and propagates.
+    """
+    try:
+        acc.end_training()
+    except (RuntimeError, OSError) as exc:
+        logger.warning(
+            "accelerate's end_training() failed after the results were saved (%s: %s); counted in "
+            "`TrainResult.end_training_errors`.",
+            type(exc).__name__,
+            exc,
+        )
+        return 1
+    return 0
 
 
 def load_checkpoint_model(checkpoint: str | Path, *, use_ema: bool = True) -> NeuralGafferModel:

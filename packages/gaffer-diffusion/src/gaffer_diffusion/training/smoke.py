@@ -253,6 +253,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             "loss_falls": bool(losses) and float(np.mean(losses[-k:])) < float(np.mean(losses[:k])),
             "skipped_steps": result.skipped_steps,
             "skipped_samples": result.skipped_samples,
+            "end_training_errors": result.end_training_errors,
         },
         "heldout_psnr_db": {
             "identity_baseline": identity,
