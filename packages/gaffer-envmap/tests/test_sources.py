@@ -281,3 +281,16 @@ def test_the_tutorial_plugin_works_as_written(tmp_path, monkeypatch, capsys) -> 
     )
     assert lit.radiance_linear.shape == (16, 32, 3)
     sys.modules.pop("my_light", None)
+
+
+def test_a_name_registered_by_two_distributions_is_reported(plugin, tmp_path, monkeypatch) -> None:
+    other = tmp_path / "other"
+    write_plugin_distribution(
+        other, name="gaffer-other-plugin", entry_points={"toy-model": f"{MODULE}:ESTIMATOR"}
+    )
+    monkeypatch.syspath_prepend(str(other))
+    entry = {e.name: e for e in envmap_sources()}["toy-model"]
+    assert entry.source is None and "registered more than once" in (entry.error or "")
+    assert "gaffer-other-plugin 1.0" in (entry.error or "")
+    with pytest.raises(EnvmapSourceError, match="registered more than once"):
+        load_envmap_source("toy-model")
