@@ -14,6 +14,7 @@ or `EnvironmentMap`, finite and non-negative (`gaffer_envmap.sanitize`), resampl
 for (power-exact) and converted to the Blender convention when it says it is in another.
 
 Frames (both in the Blender convention: world z up, `gaffer_envmap.conventions`):
+
 - `from_text`: a world map, as `gaffer-envmap sky` writes them.
 - `from_photo`: the light around the camera that took the photo, for a level camera looking along
   world +y (the map's column u = 0.25 is straight ahead, u = 0.5 is the camera's right, +x), as
