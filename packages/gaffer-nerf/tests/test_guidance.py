@@ -1,5 +1,7 @@
 """The diffusion prior for 3D: reference-twin loop, SDEdit targets, SDS gradients, perceptual fallback."""
 
+import logging
+
 import pytest
 import torch
 
@@ -80,15 +82,81 @@ def test_denoise_from_t_star(guide: DiffusionGuide) -> None:
     assert ts.tolist() == [t for t in full.tolist() if t <= 400] == [333, 167, 1]
 
 
-def test_sds_gradient_reaches_the_image(guide: DiffusionGuide) -> None:
-    cond = random_conditions(1, 64, seed=5)
-    enc = guide.pipeline.encode(cond)
+def _known_eps(value: float, seen: dict[str, object]):
+    """A stand-in for the guide's CFG noise prediction: `value` everywhere (NaN/Inf allowed), and a
+    record of the noisy latent and timestep it was asked about."""
+
+    def eps(z_t: torch.Tensor, t: torch.Tensor, enc: object, guidance: float) -> torch.Tensor:
+        seen["z_t"], seen["t"], seen["guidance"] = z_t.detach().clone(), int(t), guidance
+        out = torch.zeros_like(z_t)
+        out[0, 0] = value
+        return out
+
+    return eps
+
+
+def test_sds_gradient_is_w_t_times_eps_hat_minus_eps_through_the_encoder(
+    guide: DiffusionGuide, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # DreamFusion's SDS: d loss / d z_0 = w(t) (eps_hat(z_t) - eps), w(t) = sds_weight (1 - alpha_bar_t),
+    # pushed to the image through the encoder's Jacobian. With a noise prediction we know (0.3 on
+    # channel 0, 0 elsewhere) and the z_t the model was shown, eps = (z_t - sqrt(abar) z_0) /
+    # sqrt(1 - abar) and the whole gradient follow; a wrong sign, weight or Jacobian fails here.
+    from gaffer_nerf.guidance.diffusion import _ddim_scheduler
+
+    assert guide.model.config.scheduler.prediction_type == "epsilon"  # eps_hat is the UNet output
+    seen: dict[str, object] = {}
+    monkeypatch.setattr(guide, "_eps", _known_eps(0.3, seen))
+    enc = guide.pipeline.encode(random_conditions(1, 64, seed=5))
     x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(6)).requires_grad_()
-    loss = guide.sds_loss(
-        x, enc, Stage2Config(loss="sds"), generator=torch.Generator().manual_seed(0)
-    )
+    cfg = Stage2Config(loss="sds", sds_weight=2.0, sds_guidance_scale=1.5)
+    loss = guide.sds_loss(x, enc, cfg, generator=torch.Generator().manual_seed(0))
     loss.backward()
-    assert x.grad is not None and float(x.grad.abs().sum()) > 0
+    t = seen["t"]
+    assert isinstance(t, int) and 20 <= t <= 980 and seen["guidance"] == 1.5
+
+    x_ref = x.detach().clone().requires_grad_()
+    z0 = guide.encode_image(x_ref, enc, mode="mode")
+    abar = _ddim_scheduler(guide.model.config.scheduler).alphas_cumprod[t]
+    z_t = seen["z_t"]
+    assert isinstance(z_t, torch.Tensor)
+    eps = (z_t - abar.sqrt() * z0.detach()) / (1.0 - abar).sqrt()
+    assert 0.5 < float(eps.std()) < 1.5  # the recovered noise is the N(0, 1) draw
+    eps_hat = torch.zeros_like(z_t)
+    eps_hat[0, 0] = 0.3
+    g = 2.0 * (1.0 - abar) * (eps_hat - eps)
+    (expected,) = torch.autograd.grad(z0, x_ref, g)
+    assert x.grad is not None
+    torch.testing.assert_close(x.grad, expected, rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(loss.detach(), 0.5 * (g**2).sum(), rtol=1e-4, atol=1e-6)
+    # and a small step against it lowers the SDS objective 0.5 ||z_0(x) - sg(z_0 - g)||^2
+    target = (z0 - g).detach()
+    before = float(0.5 * (g**2).sum())  # at x: z_0 - target = g
+    with torch.no_grad():
+        stepped = guide.encode_image(x.detach() - 1e-3 * x.grad / x.grad.norm(), enc)
+    assert float(0.5 * ((stepped - target) ** 2).sum()) < before
+
+
+def test_non_finite_sds_gradients_are_zeroed_counted_and_warned_about_once(
+    guide: DiffusionGuide, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    fresh = DiffusionGuide(guide.pipeline, guide.requested)
+    enc = fresh.pipeline.encode(random_conditions(1, 64, seed=5))
+    channel = enc.image_latents.shape[-1] ** 2  # the values of one latent channel (8 x 8)
+    caplog.set_level(logging.WARNING, logger="gaffer_nerf.guidance.diffusion")
+    for step, bad in enumerate((float("nan"), float("inf"))):
+        monkeypatch.setattr(fresh, "_eps", _known_eps(bad, {}))
+        x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(6)).requires_grad_()
+        loss = fresh.sds_loss(
+            x, enc, Stage2Config(loss="sds"), generator=torch.Generator().manual_seed(step)
+        )
+        loss.backward()
+        assert bool(torch.isfinite(loss)) and x.grad is not None
+        assert bool(torch.isfinite(x.grad).all())
+        assert float(loss.detach()) < 1e6  # zeroed, not clamped to the largest float
+    assert fresh.sds_non_finite == 2 * channel
+    warned = [r for r in caplog.records if "NaN or infinite" in r.getMessage()]
+    assert len(warned) == 1 and f"{channel} of {4 * channel}" in warned[0].getMessage()
 
 
 def test_perceptual_loss_available_and_fallback(monkeypatch: pytest.MonkeyPatch) -> None:

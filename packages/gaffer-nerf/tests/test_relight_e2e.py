@@ -1,6 +1,7 @@
 """End to end on CPU: fit -> Stage 1 -> Stage 2 -> evaluate (tiny scene, tiny random diffusion model)."""
 
 import dataclasses
+import math
 import time
 
 import pytest
@@ -13,6 +14,7 @@ from gaffer_nerf.configs import relight_preset
 from gaffer_nerf.evaluate import evaluate_field
 from gaffer_nerf.fit import fit_tensorf
 from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss, unavailable_perceptual
+from gaffer_nerf.guidance.diffusion import t_star
 from gaffer_nerf.relight import relight_field
 from gaffer_nerf.rendering import build_weight_cache, render_cached
 from gaffer_nerf.testing import quick_fit_config
@@ -81,8 +83,44 @@ def test_ablations_run(fitted, scene, ablation: str) -> None:
     assert (r.stage2 is None) == (ablation == "no-stage2")
     if r.stage2 is not None:
         assert r.stage2.loss_kind == ("sds" if "sds" in ablation else "guidance")
-        assert r.stage2.t_star == (() if "sds" in ablation else r.stage2.t_star)
+        # SDS draws its timesteps at random and records none; the guidance loss records the t* of
+        # each step, which follows the configured schedule (0.4 -> 0.05 over the 2 steps here)
+        expected = (
+            ()
+            if "sds" in ablation
+            else tuple(t_star(k, cfg.stage2.iterations, cfg.stage2) for k in range(2))
+        )
+        assert r.stage2.t_star == pytest.approx(expected), r.stage2.t_star
+        if expected:
+            assert expected == pytest.approx((0.4, 0.05))
     assert r.relight_views_seconds == 0.0
+    if r.stage2 is not None:
+        assert r.stage2.sds_non_finite == 0  # a healthy model: nothing zeroed
+
+
+def test_sds_stage_reports_the_non_finite_gradient_values_it_zeroed(
+    fitted, scene, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = relight_preset("tiny", "sds-only")
+    assert cfg.stage2 is not None
+    cfg = dataclasses.replace(cfg, stage2=dataclasses.replace(cfg.stage2, iterations=3))
+    guide = _guide(cfg)
+    calls = {"n": 0}
+
+    def one_nan(z_t: torch.Tensor, *_: object) -> torch.Tensor:
+        calls["n"] += 1
+        out = torch.zeros_like(z_t)
+        out[0, 0, 0, 0] = float("nan")  # one bad value per SDS evaluation
+        return out
+
+    monkeypatch.setattr(guide, "_eps", one_nan)
+    res = relight_field(
+        fitted.field, scene.train, scene.env_target, guide, cfg,
+        unavailable_perceptual("not requested"),
+    )  # fmt: skip
+    s2 = res.report.stage2
+    assert s2 is not None and all(math.isfinite(v) for v in s2.losses)
+    assert calls["n"] >= 3 and s2.sds_non_finite == calls["n"] == guide.sds_non_finite
 
 
 def test_authors_schedule_and_perceptual_fallback(

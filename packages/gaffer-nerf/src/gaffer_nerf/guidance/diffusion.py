@@ -11,6 +11,7 @@ instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started f
 `RelightPipeline.sample` to float precision.
 """
 
+import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +39,8 @@ from gaffer_envmap import EnvironmentMap
 from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, ModelSampling, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.guidance.framing import ViewFraming, frame_views
+
+logger = logging.getLogger(__name__)
 
 ProgressCallback = Callable[[int, int], None]
 
@@ -137,6 +140,8 @@ class DiffusionGuide:
         requested: `sampling` as given.
         suggested: the model's suggestion.
         sampling: the resolved setting every path uses (no None left).
+        sds_non_finite: SDS gradient values that were NaN or infinite and were zeroed, since this
+            guide was built (Stage 2 reports its own share in `StageReport.sds_non_finite`).
     """
 
     def __init__(
@@ -154,6 +159,8 @@ class DiffusionGuide:
         self.sampling = self.requested.resolved(self.suggested)
         for module in (self.model.unet, self.model.vae, self.model.image_encoder):
             module.requires_grad_(False)
+        self.sds_non_finite = 0
+        self._warned_non_finite = False
 
     @property
     def resolution(self) -> int:
@@ -482,9 +489,27 @@ class DiffusionGuide:
             alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)
             eps = _as_epsilon(pred, z_t, alpha_bar, self.model.config.scheduler.prediction_type)
             grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)
-            grad = torch.nan_to_num(grad)
+            grad = self._zero_non_finite(grad, int(t))
         target = (z0 - grad).detach()
         return 0.5 * F.mse_loss(z0.float(), target.float(), reduction="sum") / z0.shape[0]
+
+    def _zero_non_finite(self, grad: Tensor, t: int) -> Tensor:
+        """`grad` with NaN/Inf values zeroed, counted in `sds_non_finite` (warned about once)."""
+        finite = torch.isfinite(grad)
+        bad = int((~finite).sum())
+        if bad == 0:
+            return grad
+        self.sds_non_finite += bad
+        if not self._warned_non_finite:
+            self._warned_non_finite = True
+            logger.warning(
+                "SDS gradient: %d of %d values are NaN or infinite at timestep %d; zeroed. Further "
+                "ones are zeroed without a warning and counted in `StageReport.sds_non_finite`.",
+                bad,
+                grad.numel(),
+                t,
+            )
+        return torch.where(finite, grad, torch.zeros_like(grad))
 
 
 if TYPE_CHECKING:

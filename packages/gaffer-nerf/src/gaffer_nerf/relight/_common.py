@@ -18,6 +18,8 @@ class StageReport:
         losses: loss after every step.
         t_star: Stage 2 with the guidance loss: t* at every step (empty otherwise).
         loss_kind: "l2" (Stage 1), "guidance" or "sds" (Stage 2).
+        sds_non_finite: Stage 2 with the SDS loss: gradient values that were NaN or infinite and were
+            zeroed (0 otherwise; see `DiffusionGuide.sds_non_finite`).
     """
 
     name: str
@@ -26,6 +28,7 @@ class StageReport:
     losses: tuple[float, ...]
     t_star: tuple[float, ...] = ()
     loss_kind: str = ""
+    sds_non_finite: int = 0
 
 
 def appearance_optimizer(

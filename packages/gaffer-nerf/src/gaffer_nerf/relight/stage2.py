@@ -91,6 +91,7 @@ def run_stage2(
     opt = appearance_optimizer(field, config.lr_grid, config.lr_network, config.betas)
     device = cache.weights.device
     losses, stars = [], []
+    non_finite_before = guide.sds_non_finite
     bar = tqdm(range(config.iterations), disable=not progress, desc="stage 2", leave=False)
     for step in bar:
         v = int(torch.randint(0, views, (1,), generator=generator))
@@ -148,4 +149,5 @@ def run_stage2(
         losses=tuple(losses),
         t_star=tuple(stars),
         loss_kind=config.loss,
+        sds_non_finite=guide.sds_non_finite - non_finite_before,
     )
