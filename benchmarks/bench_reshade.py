@@ -27,6 +27,7 @@ the plumbing.
 
 import argparse
 import hashlib
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -70,6 +71,15 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def _release_of(folder: Path) -> str:
+    """`"gaffer-tiny 0.5"` from a model folder's manifest `release`, else "unreleased checkpoint"."""
+    manifest = json.loads((folder / "gaffer_model.json").read_text())
+    release = manifest.get("release")
+    if not isinstance(release, dict):
+        return "unreleased checkpoint"
+    return f"{release.get('name')} {release.get('version')}"
+
+
 def true_normals_reader(split: Path) -> Any:
     """`(pair, box, size) -> [3, size, size]` true camera-frame normals of the pair's input view."""
     from gaffer_data import read_object
@@ -95,7 +105,12 @@ def true_normals_reader(split: Path) -> Any:
 def evaluate_row(
     row: Row, split: Path, limit: int | None, out_dir: Path, stride: int = 1
 ) -> dict[str, Any]:
-    from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
+    from gaffer_diffusion.evaluation import (
+        EnvmapLighting,
+        EvaluationConfig,
+        dataset_pairs,
+        evaluate_dataset,
+    )
     from gaffer_diffusion.geometry.estimator import shipped_normal_estimator_path
     from gaffer_diffusion.loading import load_pretrained
     from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
@@ -130,9 +145,13 @@ def evaluate_row(
     settings = {
         "label": row.label,
         "model": str(folder),
+        # a released model's name and version (its manifest's "release"); an exported training
+        # checkpoint has none and is labelled so, never as the shipped model
+        "release": _release_of(folder),
         "unet_sha256": _sha256(weights),
         "hint_geometry": row.geometry,
         "split": str(split),
+        "split_manifest_sha256": _sha256(split / "dataset.json"),
         "pair_stride": stride,
     }
     params = sum(p.numel() for p in model.unet.parameters())
@@ -151,7 +170,13 @@ def evaluate_row(
     )
     seconds = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / f"{split.name}-{row.label}.json").write_text(result.to_json() + "\n")
+    document = json.loads(result.to_json())
+    # each pair's target map (file stem), so tables by target HDRI come from this file alone
+    document["pair_target_envmap"] = {
+        p.name: Path(p.lighting.source).stem if isinstance(p.lighting, EnvmapLighting) else None
+        for p in pairs
+    }
+    (out_dir / f"{split.name}-{row.label}.json").write_text(json.dumps(document, indent=2) + "\n")
     r, b = result.report, result.baseline
     assert r.mean_object_raw is not None and r.mean_object_aligned is not None
     assert b is not None and b.mean_object_raw is not None and b.mean_object_aligned is not None
@@ -170,7 +195,9 @@ def evaluate_row(
         "input_object_psnr_aligned": b.mean_object_aligned.psnr,
         "input_object_stlpips": b.mean_object_raw.perceptual,
         "eval_seconds": seconds,
+        "release": settings["release"],
         "unet_sha256": settings["unet_sha256"],
+        "split_manifest_sha256": settings["split_manifest_sha256"],
     }
 
 
