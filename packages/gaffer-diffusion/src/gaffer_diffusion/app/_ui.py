@@ -142,19 +142,36 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
     from gaffer_envmap.bundled import bundled_hdris
 
     jobs = _Jobs(jobs_root)
+    source_maps = jobs_root / "source-maps"  # maps made by lighting sources from words
+    text_sources = engine.text_sources()
     hdris = list(bundled_hdris())
     labels = engine.model_labels
     mp4 = (
         mp4_backend()
     )  # probed once: the MP4 button is hidden, with the reason, without an encoder
 
+    def _lighting_path(
+        hdri: str | None, envfile: str | None, source: str | None, words: str | None
+    ) -> str:
+        """A lighting source's map of the words when one is chosen, else the upload or the HDRI."""
+        if source:
+            return str(engine.source_envmap_path(source, words or "", source_maps))
+        return _envmap_path(hdri, envfile)
+
     @_shown_in_page
     def preview(
-        model: str, hdri: str, envfile: str | None, az: float, el: float, spin: float
+        model: str,
+        hdri: str,
+        envfile: str | None,
+        az: float,
+        el: float,
+        spin: float,
+        source: str | None = None,
+        words: str | None = None,
     ) -> tuple[Any, ...]:
         shown = engine.preview(
             model,
-            _envmap_path(hdri, envfile),
+            _lighting_path(hdri, envfile, source, words),
             CameraPose(azimuth_deg=float(az), elevation_deg=float(el), spin_deg=float(spin)),
         )
         return shown.ldr, shown.hdr, shown.camera_view
@@ -170,6 +187,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         seed: float | None,
         output_size: str | None,
         frames: int,
+        words_light: tuple[str | None, str | None] = ("", ""),
     ) -> tuple[PhotoInput, RelightResult, Path, float]:
         if not photo:
             raise gr.Error(
@@ -187,7 +205,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         result = engine.relight(
             model,
             prepared,
-            _envmap_path(hdri, envfile),
+            _lighting_path(hdri, envfile, *words_light),
             CameraPose(
                 azimuth_deg=float(pose[0]), elevation_deg=float(pose[1]), spin_deg=float(pose[2])
             ),
@@ -244,9 +262,21 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         seed: float | None,
         output_size: str | None = "photo",
         auto_digest: str = "",
+        source: str | None = None,
+        words: str | None = None,
     ) -> tuple[Any, ...]:
         prepared, result, out, seconds = _run(
-            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, output_size, 0
+            model,
+            photo,
+            mask,
+            hdri,
+            envfile,
+            (az, el, spin),
+            steps,
+            seed,
+            output_size,
+            0,
+            (source, words),
         )
         relit = _save_png(out / "relit.png", result.frames[0])
         status = (
@@ -280,12 +310,24 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         frames: float,
         fps: float,
         auto_digest: str = "",
+        source: str | None = None,
+        words: str | None = None,
     ) -> tuple[Any, ...]:
         n = int(frames)
         if n < 2:
             raise gr.Error("A turntable needs 2 or more frames.", print_exception=False)
         prepared, result, out, seconds = _run(
-            model, photo, mask, hdri, envfile, (az, el, spin), steps, seed, output_size, n
+            model,
+            photo,
+            mask,
+            hdri,
+            envfile,
+            (az, el, spin),
+            steps,
+            seed,
+            output_size,
+            n,
+            (source, words),
         )
         gif = str(write_gif(out / "turntable.gif", result.frames, float(fps)))
         status = (
@@ -342,6 +384,19 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
                     elem_id="envfile",
                     height=90,
                 )
+                with gr.Accordion("...or lighting from words (a lighting source)", open=False):
+                    light_source = gr.Dropdown(
+                        choices=[("none: the map above", ""), *((n, n) for n in text_sources)],
+                        value="",
+                        label="Lighting source (sky: the built-in grammar; others: installed "
+                        "plugins, docs/tutorials/skies.md)",
+                        elem_id="light_source",
+                    )
+                    light_text = gr.Textbox(
+                        label="Words (press Enter)",
+                        placeholder="golden hour from the left",
+                        elem_id="light_text",
+                    )
                 az = gr.Slider(
                     -180, 180, value=0, step=1, label="Camera azimuth (deg)", elem_id="azimuth"
                 )
@@ -461,7 +516,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             elem_id="mp4_note",
         )
 
-        light_inputs = [model, hdri, envfile, az, el, spin]
+        light_inputs = [model, hdri, envfile, az, el, spin, light_source, light_text]
         previews = [ldr, hdr, view]
         preview_args: dict[str, Any] = {
             "fn": preview,
@@ -477,6 +532,8 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         for field in (model, hdri):
             field.change(api_visibility="private", **preview_args)
         envfile.change(api_visibility="private", **preview_args)
+        light_source.change(api_visibility="private", **preview_args)
+        light_text.submit(api_visibility="private", **preview_args)
         photo.change(
             auto_mask,
             [photo, mask, mask_is_auto],
@@ -491,7 +548,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         # one sampling job at a time across both buttons (and the API); others wait in the queue
         relight_btn.click(
             relight,
-            [*job_inputs, mask_is_auto],
+            [*job_inputs, mask_is_auto, light_source, light_text],
             [prepared, prepared_mask, relit, relit_dl, status],
             api_name="relight",
             concurrency_id="model",
@@ -499,7 +556,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         )
         turntable_btn.click(
             turntable,
-            [*job_inputs, frames, fps, mask_is_auto],
+            [*job_inputs, frames, fps, mask_is_auto, light_source, light_text],
             [spin_gif, gif_dl, mp4_dl, status],
             api_name="turntable",
             concurrency_id="model",

@@ -58,6 +58,11 @@ BATCH_SIZE = 4
 """Turntable frames per sampling call (as `gaffer-diffusion relight --batch-size`'s default)."""
 
 _ENVMAP_CACHE = 4
+
+SOURCE_MAP_WIDTH = 512
+KEEP_SOURCE_MAPS = 16
+"""Maps made from words kept on disk (the newest); an older phrase is made again when asked."""
+"""Width of a map made by a lighting source from words (256 rows; the model sees 256 x 256 at most)."""
 """Environment maps kept decoded, so dragging a slider does not re-read the EXR each time."""
 
 OutputSize = Literal["photo", "model"]
@@ -265,6 +270,48 @@ class Engine:
             while len(self._envmaps) > _ENVMAP_CACHE:
                 self._envmaps.popitem(last=False)
         return env
+
+    def text_sources(self) -> list[str]:
+        """Names of the installed lighting sources that start from words (the built-in "sky" and
+        plugins of the entry-point group `gaffer.envmap_sources`); broken plugins are left out."""
+        from gaffer_envmap.sources import envmap_sources
+
+        return [e.name for e in envmap_sources() if e.source and "text" in e.source.capabilities]
+
+    def source_envmap_path(self, source: str, text: str, folder: Path) -> Path:
+        """The map a lighting source makes of `text`, written once into `folder` as an EXR (named by
+        a hash of source and words, so the same words reuse it; the newest `KEEP_SOURCE_MAPS` kept)
+        and read like an uploaded map.
+
+        Raises:
+            InputValueError: no words.
+            gaffer_envmap.errors.EnvmapSourceError: an unknown or broken source, a source without
+                words, or a map it returned that is not finite, non-negative and 2:1.
+        """
+        import hashlib
+
+        from gaffer_envmap.io import write_envmap
+        from gaffer_envmap.sources import envmap_from_text, load_envmap_source
+
+        words = " ".join(str(text or "").split())
+        if not words:
+            raise InputValueError(
+                f"Lighting source {source!r}: type the words it turns into lighting, e.g. "
+                '"golden hour from the left".'
+            )
+        key = hashlib.sha256(f"{source}\0{words}".encode()).hexdigest()[:24]
+        path = Path(folder) / f"source-{key}.exr"
+        if not path.exists():
+            found = load_envmap_source(source, flag="Lighting source")
+            env = envmap_from_text(found, words, width=SOURCE_MAP_WIDTH, flag="Lighting source")
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_envmap(path, env)  # atomic: a concurrent reader sees the whole map or none
+            made = sorted(
+                path.parent.glob("source-*.exr"), key=lambda p: (p == path, p.stat().st_mtime)
+            )
+            for old in made[:-KEEP_SOURCE_MAPS]:  # bounded disk use, however many phrases come
+                old.unlink(missing_ok=True)
+        return path
 
     def preview(self, label: str, envmap_path: str | Path, pose: CameraPose) -> LightingPreview:
         """E_L, E_H and the camera-frame panorama for the model's size and encoding."""
