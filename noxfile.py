@@ -90,7 +90,7 @@ def typecheck(session: nox.Session) -> None:
     _install(
         session,
         "-e",
-        "packages/gaffer-envmap[hdr]",
+        "packages/gaffer-envmap[hdr,sky]",
         "-e",
         "packages/gaffer-data[filter]",
         "-e",

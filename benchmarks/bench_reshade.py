@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import _common as common
+import gaffer_tiny_card as card
 import numpy as np
 import torch
 
@@ -69,6 +70,18 @@ def _sha256(path: Path) -> str:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
+
+
+def _rounded(value: Any) -> Any:
+    """Floats to 5 decimals: far below any difference a score can show (1e-5 dB), and the committed
+    per-pair files shrink by half."""
+    if isinstance(value, float):
+        return round(value, 5)
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_rounded(v) for v in value]
+    return value
 
 
 def _release_of(folder: Path) -> str:
@@ -107,13 +120,13 @@ def evaluate_row(
 ) -> dict[str, Any]:
     from gaffer_diffusion.evaluation import (
         EnvmapLighting,
-        EvaluationConfig,
         dataset_pairs,
         evaluate_dataset,
+        suggested_evaluation_config,
     )
     from gaffer_diffusion.geometry.estimator import shipped_normal_estimator_path
     from gaffer_diffusion.loading import load_pretrained
-    from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
+    from gaffer_diffusion.pipelines import RelightPipeline
     from gaffer_diffusion.pretrained import gaffer_tiny_path, load_gaffer_tiny
     from gaffer_diffusion.suggested import read_suggested_sampling
 
@@ -126,21 +139,7 @@ def evaluate_row(
     suggested = read_suggested_sampling(folder)
     # every `stride`-th pair: a spread subset of every object (validation sweeps); 1 = all
     pairs = dataset_pairs(split, limit=limit)[::stride]
-    config = EvaluationConfig(
-        sampling=SamplingConfig(
-            num_inference_steps=suggested.num_inference_steps,
-            guidance_scale=float(suggested.guidance_scale),
-            average_samples=suggested.average_samples,
-            mirror_average=suggested.mirror_average,
-        ),
-        seed=0,
-        batch_size=8,
-        compat=suggested.compat,
-        keep_background=True,
-        object_fraction=None
-        if suggested.object_fraction is None
-        else float(suggested.object_fraction),
-    )
+    config = suggested_evaluation_config(suggested, seed=0, batch_size=8)
     weights = folder / "unet" / "diffusion_pytorch_model.safetensors"
     settings = {
         "label": row.label,
@@ -176,24 +175,17 @@ def evaluate_row(
         p.name: Path(p.lighting.source).stem if isinstance(p.lighting, EnvmapLighting) else None
         for p in pairs
     }
-    (out_dir / f"{split.name}-{row.label}.json").write_text(json.dumps(document, indent=2) + "\n")
-    r, b = result.report, result.baseline
-    assert r.mean_object_raw is not None and r.mean_object_aligned is not None
-    assert b is not None and b.mean_object_raw is not None and b.mean_object_aligned is not None
+    (out_dir / f"{split.name}-{row.label}.json").write_text(
+        json.dumps(_rounded(document), indent=1) + "\n"
+    )
     return {
         "label": row.label,
         "hint_geometry": row.geometry,
         "train_seconds": row.train_seconds,
         "parameters": params,
-        "pairs": len(pairs),
-        "object_psnr_raw": r.mean_object_raw.psnr,
-        "object_psnr_aligned": r.mean_object_aligned.psnr,
-        "object_stlpips": r.mean_object_raw.perceptual,
-        "closer_than_input": result.closer_than_input,
-        "full_psnr": r.mean_raw.psnr,
-        "input_object_psnr_raw": b.mean_object_raw.psnr,
-        "input_object_psnr_aligned": b.mean_object_aligned.psnr,
-        "input_object_stlpips": b.mean_object_raw.perceptual,
+        # means over the pairs with something to relight (an input identical to its target is left
+        # out: gaffer_tiny_card.row_means), the numbers the model card shows
+        **card.row_means(document),
         "eval_seconds": seconds,
         "release": settings["release"],
         "unet_sha256": settings["unet_sha256"],
@@ -282,6 +274,61 @@ def quick_split() -> Path:
     return data
 
 
+def _parameters(folder: Path, geometry: str) -> int:
+    """Parameters a row runs with: its UNet, plus the normal estimator when its hints use one."""
+    from gaffer_diffusion.loading import load_pretrained
+
+    model = load_pretrained(folder).model
+    params = sum(p.numel() for p in model.unet.parameters())
+    if model.config.hint_geometry == "estimated" and geometry == "estimated":
+        from gaffer_diffusion.geometry.estimator import shipped_normal_estimator
+
+        params += sum(p.numel() for p in shipped_normal_estimator().parameters())
+    return params
+
+
+def replot(split_name: str, rows: list[Row]) -> int:
+    """Rebuild the summary and chart of `split_name` from the committed per-pair files.
+
+    A row's training seconds and parameters come from `--row` when given (its model folder is only
+    read for its parameter count, nothing is evaluated), else from the existing summary."""
+    summary_path = common.RESULTS / f"{NAME}_{split_name}.json"
+    payload = (
+        json.loads(summary_path.read_text())
+        if summary_path.is_file()
+        else {"machine": None, "split": split_name, "rows": [], "pair_stride": None}
+    )
+    known = {r["label"]: r for r in payload["rows"]}
+    for row in rows:
+        if row.model is None:
+            from gaffer_diffusion.pretrained import gaffer_tiny_path
+
+            folder = gaffer_tiny_path()
+        else:
+            folder = row.model
+        known[row.label] = {
+            "label": row.label,
+            "hint_geometry": row.geometry,
+            "train_seconds": row.train_seconds,
+            "parameters": _parameters(folder, row.geometry),
+        }
+    out = []
+    for label, entry in known.items():
+        path = common.RESULTS / NAME / f"{split_name}-{label}.json"
+        if not path.is_file():
+            raise SystemExit(f"--replot: no per-pair file {path} for row {label!r}")
+        doc = json.loads(path.read_text())
+        entry.update(card.row_means(doc))
+        for key in ("release", "unet_sha256", "split_manifest_sha256", "pair_stride"):
+            entry[key] = doc["settings"].get(key)
+        out.append(entry)
+    payload["rows"] = out
+    summary_path.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
+    figure(out, split_name).savefig(summary_path.with_suffix(".png"), dpi=120, bbox_inches="tight")
+    print(f"rewrote {summary_path} and its chart from {common.RESULTS / NAME}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--split", type=Path, help="a gaffer-data render split")
@@ -293,7 +340,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=0)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--update-baseline", action="store_true")
+    parser.add_argument(
+        "--replot",
+        action="store_true",
+        help="rebuild results/reshade_<split>.json and its chart from the committed per-pair files "
+        "(no model runs; training seconds and parameters from --row, else kept from the summary)",
+    )
     args = parser.parse_args(argv)
+    if args.replot:
+        if args.split is None:
+            parser.error("--replot needs --split")
+        return replot(args.split.name, [_parse_row(r) for r in args.row])
     threads = common.set_threads(args.threads)
     if args.quick:
         split, rows, limit = quick_split(), [Row("shipped", None, "estimated", 0.0)], 4

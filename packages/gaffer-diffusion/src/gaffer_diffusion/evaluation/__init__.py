@@ -40,6 +40,7 @@ from gaffer_diffusion.evaluation.records import (
     EvalPair,
     EvaluationConfig,
     InputLighting,
+    suggested_evaluation_config,
 )
 from gaffer_diffusion.evaluation.run import evaluate_dataset
 
@@ -62,4 +63,5 @@ __all__ = [
     "read_lighting_map",
     "read_mask",
     "read_rgba_on_white",
+    "suggested_evaluation_config",
 ]

@@ -1,0 +1,49 @@
+"""gaffer-tiny's model card carries tables generated from committed result files (issue 34 item 2).
+
+`benchmarks/gaffer_tiny_card.py` rebuilds each table of MODEL_CARD.md from the per-pair evaluation
+files in `benchmarks/results/reshade/`; a number edited by hand in the card, or a result file replaced
+without regenerating the card, fails here.
+"""
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).parents[2]
+SCRIPT = ROOT / "benchmarks" / "gaffer_tiny_card.py"
+SHIPPED = ROOT / "packages/gaffer-diffusion/src/gaffer_diffusion/weights/gaffer-tiny"
+
+
+def _card_module():
+    spec = importlib.util.spec_from_file_location("gaffer_tiny_card", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_model_card_tables_match_the_result_files() -> None:
+    card = _card_module()
+    generated = card.tables()
+    in_card = card.card_tables(card.CARD.read_text())
+    assert set(generated) <= set(in_card), (
+        f"tables missing from the card: {set(generated) - set(in_card)}"
+    )
+    for name, table in generated.items():
+        assert in_card[name] == table, f"MODEL_CARD.md table {name!r} differs from its result files"
+
+
+def test_the_shipped_rows_measured_the_shipped_weights() -> None:
+    """The test rows labelled as the shipped release name its version and its weights' sha256."""
+    import hashlib
+
+    card = _card_module()
+    weights = SHIPPED / "unet" / "diffusion_pytorch_model.safetensors"
+    sha = hashlib.sha256(weights.read_bytes()).hexdigest()
+    release = json.loads((SHIPPED / "gaffer_model.json").read_text())["release"]
+    label = f"{release['name']} {release['version']}"
+    rows = [r for r in card._read(card.TEST_SPLIT) if r.label.startswith(card.SHIPPED_LABEL)]
+    assert rows, "no test rows of the shipped model"
+    for row in rows:
+        assert row.settings["release"] == label
+        assert row.settings["unet_sha256"] == sha
