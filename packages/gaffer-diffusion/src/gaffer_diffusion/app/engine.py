@@ -8,6 +8,12 @@ classical fallback), `photo.prepare_photo` crops the object and puts it on white
 `photo.paste_back` returns the relit object at the photo's full size with detail transfer (pixels
 outside the mask are the photo's bytes), or `photo.model_crop` the model-size crop. The page (`_ui.py`)
 only turns these results into widgets, so the API and the browser see the same pixels.
+
+`Engine.insert` mirrors `gaffer-diffusion insert` (cli/insert.py) the same way: the object photo
+prepared as above, the background read as displayed, `insert_geometry.light_from_photo` (the
+background wrapped onto the sphere plus the key light) or a chosen map, `resolve_placement` (checked
+before sampling) and `insert.insert_object` (relight, place, pixel-height shadow, composite); the tab's
+clicks become its flags in `app.inserting`.
 """
 
 import functools
@@ -28,12 +34,14 @@ from PIL import Image
 
 from gaffer_diffusion import images as image_io
 from gaffer_diffusion.app.config import AppConfig, ModelChoice
+from gaffer_diffusion.app.inserting import InsertOutcome, InsertSettings
 from gaffer_diffusion.conditioning import (
     CompatMode,
     lighting_from_envmap,
 )
 from gaffer_diffusion.demo import LoadedModel, load_model, sampling_for
 from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
+from gaffer_diffusion.insert_geometry import InsertLighting
 from gaffer_diffusion.loading import load_authors_release
 from gaffer_diffusion.photo import (
     Photo,
@@ -497,6 +505,108 @@ class Engine:
             model=m.loaded.name,
             steps=sampling.num_inference_steps,
             output_size=output_size,
+        )
+
+    def background(self, image_path: str | Path) -> Photo:
+        """A background photo for `insert`, checked like every upload (`max_image_side`) and read as
+        displayed (EXIF orientation applied, as `insert --into` reads it).
+
+        Raises:
+            InputValueError: an unreadable or too large image.
+        """
+        self._check_image(image_path, "background")
+        return read_photo(image_path)
+
+    def insert_lighting(
+        self, background: Photo, settings: InsertSettings, envmap_path: str | Path | None = None
+    ) -> InsertLighting:
+        """The lighting `insert` uses: `--envmap` (a map's path) seen from the level background
+        camera, else the map built from the background plus the key light (`--light-from-photo`,
+        `insert_geometry.light_from_photo`)."""
+        from gaffer_diffusion.insert_geometry import (
+            LEVEL_CAMERA,
+            BackgroundCamera,
+            InsertLighting,
+            light_from_photo,
+        )
+
+        w, h = background.size_wh
+        camera = BackgroundCamera(width=w, height=h, fov_deg=settings.fov_deg, w2c=LEVEL_CAMERA)
+        if envmap_path is not None:
+            return InsertLighting(
+                envmap=self.envmap(envmap_path), camera=camera, source="the chosen map"
+            )
+        key = settings.key_light
+        source = "the background wrapped onto the sphere + " + (
+            f"a key light at azimuth {key.azimuth_deg:g}, elevation {key.elevation_deg:g}, "
+            f"strength {key.strength:g}, {key.size_deg:g} degrees"
+            if key is not None
+            else "no key light (strength 0)"
+        )
+        env = light_from_photo(background.rgb, camera, key)
+        return InsertLighting(envmap=env, camera=camera, key_light=key, source=source)
+
+    def insert(
+        self,
+        label: str,
+        photo: PhotoInput,
+        background: Photo,
+        settings: InsertSettings,
+        envmap_path: str | Path | None = None,
+    ) -> InsertOutcome:
+        """`gaffer-diffusion insert`: `photo`'s object relit under the background's lighting (or the
+        map at `envmap_path`), placed at `settings.at_xy` with `settings.height_px`, shadowed and
+        composited at the background's full size (`gaffer_diffusion.insert.insert_object`).
+
+        The placement is checked before the model samples.
+
+        Raises:
+            InputValueError: `at_xy` outside the background, a height that does not fit (the message
+                names `--at` / `--height` and the most that fits).
+        """
+        import time
+
+        from gaffer_diffusion.insert import InsertConfig, insert_object
+        from gaffer_diffusion.insert_geometry import object_extent, resolve_placement
+
+        m = self.model(label)
+        placement = resolve_placement(
+            background.size_wh,
+            object_extent(photo.prepared.alpha),
+            at_xy=settings.at_xy,
+            height_px=settings.height_px,
+        )
+        lighting = self.insert_lighting(background, settings, envmap_path)
+        sampling = sampling_for(m.loaded, settings.num_inference_steps, None)
+        config = InsertConfig(
+            shadow=settings.shadow, detail="transfer", compat=m.compat, seed=settings.seed
+        )
+        with self._sample_lock:
+            start = time.perf_counter()
+            result = insert_object(
+                m.pipe,
+                sampling,
+                prepared=photo.prepared,
+                background=background,
+                lighting=lighting,
+                placement=placement,
+                config=config,
+            )
+            seconds = time.perf_counter() - start
+        light = result.light
+        return InsertOutcome(
+            image=result.image,
+            mask=photo.mask,
+            placement=placement,
+            lighting=lighting.source,
+            shadow=(
+                f"a 2d shadow from {light.source} ({light.share:.0%} of the ground's light)"
+                if settings.shadow == "2d"
+                else "no shadow"
+            ),
+            model=m.loaded.name,
+            steps=sampling.num_inference_steps,
+            seconds=seconds,
         )
 
 
