@@ -170,6 +170,8 @@ def evaluate_row(
     seconds = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
     document = json.loads(result.to_json())
+    # what it ran on and which code: a per-pair file stands alone as the source of a card's number
+    document["machine"] = common.machine(torch.get_num_threads())
     # each pair's target map (file stem), so tables by target HDRI come from this file alone
     document["pair_target_envmap"] = {
         p.name: Path(p.lighting.source).stem if isinstance(p.lighting, EnvmapLighting) else None
@@ -298,6 +300,7 @@ def replot(split_name: str, rows: list[Row]) -> int:
         if summary_path.is_file()
         else {"machine": None, "split": split_name, "rows": [], "pair_stride": None}
     )
+    payload["rebuilt_from_per_pair_files"] = True
     known = {r["label"]: r for r in payload["rows"]}
     for row in rows:
         if row.model is None:
@@ -321,8 +324,13 @@ def replot(split_name: str, rows: list[Row]) -> int:
         entry.update(card.row_means(doc))
         for key in ("release", "unet_sha256", "split_manifest_sha256", "pair_stride"):
             entry[key] = doc["settings"].get(key)
+        # each row's machine as its per-pair file recorded it (files written before the machine was
+        # recorded have none, and the summary says so rather than guess)
+        entry["machine"] = doc.get("machine")
         out.append(entry)
     payload["rows"] = out
+    if payload["machine"] is None:
+        payload["machine"] = next((r["machine"] for r in out if r["machine"]), None)
     summary_path.write_text(json.dumps(payload, indent=2, sort_keys=False) + "\n")
     figure(out, split_name).savefig(summary_path.with_suffix(".png"), dpi=120, bbox_inches="tight")
     print(f"rewrote {summary_path} and its chart from {common.RESULTS / NAME}")

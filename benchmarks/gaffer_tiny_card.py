@@ -7,7 +7,7 @@ markdown tables that MODEL_CARD.md carries, so every number there has a source f
 
     python benchmarks/gaffer_tiny_card.py            # print the tables
     python benchmarks/gaffer_tiny_card.py --check    # exit 1 when the card's tables differ
-    python benchmarks/gaffer_tiny_card.py --write    # rewrite the card's tables in place
+    python benchmarks/gaffer_tiny_card.py --write    # rewrite the card's tables (and README's headline)
 
 Each table is delimited in the card by `<!-- table: NAME -->` ... `<!-- /table -->`.
 """
@@ -169,12 +169,54 @@ def by_hdri_table(split: str, label: str) -> str:
     return "\n".join(lines)
 
 
+README = Path(__file__).parents[1] / "README.md"
+
+
+def headline() -> str:
+    """The README's sentence of gaffer-tiny's test scores, from the shipped row's per-pair file."""
+    row = next((r for r in _read(TEST_SPLIT) if r.label == SHIPPED_LABEL), None)
+    if row is None:
+        raise SystemExit(f"no results/reshade/{TEST_SPLIT}-{SHIPPED_LABEL}.json")
+    m = row_means(row.doc)
+    base_full = _mean_psnr(
+        [row.doc["baseline_unrelit_input"]["items"][i] for i in _scored_indices(row)], "raw"
+    )
+    raw, raw_in = m["object_psnr_raw"], m["input_object_psnr_raw"]
+    al, al_in = m["object_psnr_aligned"], m["input_object_psnr_aligned"]
+    return (
+        f"On a test split of unseen objects under unseen HDRIs ({m['pairs']} pairs), over the object "
+        f"mask, {row.settings['release']} scores {raw:.2f} dB PSNR vs {raw_in:.2f} dB for the unrelit "
+        f"input ({raw - raw_in:+.2f} dB), {al:.2f} vs {al_in:.2f} dB channel-aligned "
+        f"({al - al_in:+.2f} dB), ST-LPIPS {m['object_stlpips']:.4f} vs "
+        f"{m['input_object_stlpips']:.4f} on the object crop, and is closer to the truth than the "
+        f"input on {100 * m['closer_than_input']:.0f}% of pairs (full frame: {m['full_psnr']:.2f} vs "
+        f"{base_full:.2f} dB)."
+    )
+
+
+HEADLINE = re.compile(
+    r"(<!-- generated: gaffer-tiny-headline -->\n)(.*?)(\n<!-- /generated -->)", re.S
+)
+
+
+def readme_headline(text: str) -> str | None:
+    """The README's generated headline block (joined into one line), or None."""
+    found = HEADLINE.search(text)
+    return None if found is None else " ".join(found.group(2).split())
+
+
 def tables() -> dict[str, str]:
     return {
         "validation": summary_table(VALIDATION_SPLIT),
         "test": summary_table(TEST_SPLIT),
         "test-by-hdri": by_hdri_table(TEST_SPLIT, SHIPPED_LABEL),
     }
+
+
+def _wrap(text: str, width: int = 104) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width, break_on_hyphens=False))
 
 
 def card_tables(text: str) -> dict[str, str]:
@@ -204,7 +246,13 @@ def main(argv: list[str] | None = None) -> int:
                 flags=re.S,
             )
         CARD.write_text(text)
-        print(f"rewrote {len(generated)} tables in {CARD}")
+        readme = README.read_text()
+        if readme_headline(readme) is None:
+            raise SystemExit("README.md has no <!-- generated: gaffer-tiny-headline --> block")
+        README.write_text(
+            HEADLINE.sub(lambda m: m.group(1) + _wrap(headline()) + m.group(3), readme)
+        )
+        print(f"rewrote {len(generated)} tables in {CARD} and the headline in {README}")
         return 0
     if not args.check:
         for name, table in generated.items():
@@ -214,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     bad = [name for name, table in generated.items() if in_card.get(name) != table]
     for name in bad:
         print(f"MODEL_CARD.md table {name!r} differs from results/reshade (regenerate it)")
+    if readme_headline(README.read_text()) != headline():
+        print("README.md's gaffer-tiny headline differs from results/reshade (regenerate it)")
+        bad.append("README headline")
     return 1 if bad else 0
 
 

@@ -83,7 +83,7 @@ nitpick_ignore_regex = [
     (
         r"py:(class|obj|data|func|meth|attr|exc)",
         r"(numpy|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging|jaxtyping|diffusers"
-        r"|transformers|safetensors|accelerate|tqdm|concurrent\.futures|subprocess|types)\..+",
+        r"|transformers|safetensors|accelerate|tqdm|concurrent\.futures|subprocess|types|datetime)\..+",
     ),
     # `from torch import Tensor` annotations render as the bare name.
     (r"py:class", r"Tensor|ndarray"),

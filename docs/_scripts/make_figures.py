@@ -662,7 +662,7 @@ def bench_other_charts(out: Path, shown: set[str]) -> str:
         meta = {}
         if png.with_suffix(".json").exists():
             meta = json.loads(png.with_suffix(".json").read_text()).get("machine", {})
-        where = f"**Measured on:** {_machine_line(meta)}.\n\n" if "device" in meta else ""
+        where = f"**Measured on:** {_machine_line(meta)}.\n\n" if meta and "device" in meta else ""
         text += f"### `{png.stem}`\n\n{where}" + _chart(out, png.stem, png.stem) + "\n"
     return text or "*(none)*\n"
 

@@ -1,4 +1,5 @@
-"""gaffer-tiny's model card carries tables generated from committed result files (issue 34 item 2).
+"""gaffer-tiny's model card and the README headline carry numbers generated from committed result files
+(issue 34 items 2, 3 and 6).
 
 `benchmarks/gaffer_tiny_card.py` rebuilds each table of MODEL_CARD.md from the per-pair evaluation
 files in `benchmarks/results/reshade/`; a number edited by hand in the card, or a result file replaced
@@ -47,3 +48,33 @@ def test_the_shipped_rows_measured_the_shipped_weights() -> None:
     for row in rows:
         assert row.settings["release"] == label
         assert row.settings["unet_sha256"] == sha
+
+
+def test_readme_headline_matches_the_result_files() -> None:
+    """The README's gaffer-tiny scores are the generated sentence, not hand-typed numbers."""
+    card = _card_module()
+    in_readme = card.readme_headline(card.README.read_text())
+    assert in_readme is not None, (
+        "README.md lost its <!-- generated: gaffer-tiny-headline --> block"
+    )
+    assert in_readme == card.headline(), "README.md's headline differs: gaffer_tiny_card.py --write"
+
+
+def test_readme_module_map_names_files_that_exist() -> None:
+    """Each package's "where its work starts" entries in README.md point at real modules (issue 34
+    item 6): a renamed or moved module fails here instead of leaving a dead pointer."""
+    import re
+
+    text = (ROOT / "README.md").read_text()
+    rows = [ln for ln in text.splitlines() if ln.startswith("| `packages/gaffer-")]
+    assert len(rows) == 4, "README.md's package table should have one row per package"
+    for row in rows:
+        pkg = re.match(r"\| `packages/(gaffer-\w+)`", row)
+        assert pkg is not None
+        src = ROOT / "packages" / pkg.group(1) / "src" / pkg.group(1).replace("-", "_")
+        start = row.rsplit("|", 2)[1]
+        named = re.findall(r"`([\w/]+\.py)`", start)
+        assert named, f"{pkg.group(1)}: no module named in 'where its work starts'"
+        for path in named:
+            rel = path.split("/", 1)[1] if path.startswith(src.name + "/") else path
+            assert (src / rel).is_file(), f"README.md names {path}, not in {src}"

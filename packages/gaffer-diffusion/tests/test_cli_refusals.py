@@ -129,6 +129,8 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["train-normals", "--data", adir, "--out", str(tmp)], "is or holds `--data`", None),
         (["train-normals", "--data", adir, "--out", str(tmp / "imgs")],
          "not a normal estimator's", None),
+        (["train-normals", "--data", adir, "--out", str(tmp / "nrm-new"), "--steps", "0"],
+         "`--steps`", str(tmp / "nrm-new")),
         (relight(out=str(tmp / "o.jpg")), "pass a .png file", str(tmp / "o.jpg")),
         (["prepare", good, "--out", str(tmp / "q.webp")], "pass a .png file", str(tmp / "q.webp")),
         (["evaluate", "--pred", adir, "--gt", adir, "--json", str(tmp / "r.txt"), "--markdown",

@@ -115,6 +115,7 @@ def _train_normals(args: argparse.Namespace) -> int:
     _check_replaceable_estimator(args)
     checks.finite("--minutes", args.minutes, lo=0.1, hi=24 * 60.0)
     checks.int_range("--seed", args.seed, 0, checks.MAX_SEED)
+    checks.int_range("--steps", args.steps, 1, 10_000_000)
     from gaffer_diffusion.cli.train import _training_module
 
     _training_module("train-normals")
@@ -135,10 +136,12 @@ def _train_normals(args: argparse.Namespace) -> int:
     train = load_geometry_views(args.data)
     print(f"read {train.images.shape[0]} training views in {time.perf_counter() - t0:.0f} s")
     config = NormalTrainConfig(
-        max_seconds=args.minutes * 60.0, seed=args.seed, threads=args.threads
+        max_seconds=args.minutes * 60.0, max_steps=args.steps, seed=args.seed, threads=args.threads
     )
     est, stats = train_normal_estimator(train, config)
-    extra: dict[str, object] = {"training": {**stats, "data": str(args.data), "seed": args.seed}}
+    extra: dict[str, object] = {
+        "training": {**stats, "data": str(args.data), "seed": args.seed, "max_steps": args.steps}
+    }
     if args.val is not None:
         errors = angular_errors(est, load_geometry_views(args.val))
         extra["validation"] = {

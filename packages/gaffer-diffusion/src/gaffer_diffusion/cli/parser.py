@@ -437,6 +437,13 @@ def _add_normals_commands(sub: Any) -> None:
     tn.add_argument("--val", type=Path, help="held-out renders: angular error vs the dome")
     tn.add_argument("--out", type=Path, required=True, help="estimator folder to write")
     tn.add_argument("--minutes", type=float, default=15.0, help="training time budget (15)")
+    tn.add_argument(
+        "--steps",
+        type=int,
+        default=4000,
+        help="step budget (4000); the learning rate decays over it, so a run that ends on its step "
+        "budget ends fully decayed",
+    )
     tn.add_argument("--seed", type=int, default=0, help="seed (0)")
     tn.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
 
