@@ -30,6 +30,9 @@ PACKAGES = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 TEST_SPECS = tuple(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}[all]"))
 TYPECHECKED = ("gaffer-envmap", "gaffer-data", "gaffer-diffusion", "gaffer-nerf")
 """Packages pyright checks in the `typecheck` session: all four (issue 14 item 5)."""
+INTEGRATIONS_EDITABLE = ("-e", "integrations/comfyui")
+"""The ComfyUI node pack (issue 37): its tests load it from its folder as ComfyUI does (no install,
+collected through the root `testpaths`); `lint` installs it so import-linter can read it."""
 TEST_TOOLS = ("pytest==9.2.0", "jaxtyping>=0.2.36", "beartype>=0.19", "scipy>=1.11", "bpy==5.0.1")
 
 
@@ -77,8 +80,13 @@ def lint(session: nox.Session) -> None:
     session.install("ruff==0.17.6", "import-linter>=2.1")
     session.run("ruff", "check", ".")
     session.run("ruff", "format", "--check", ".")
-    # Sources only (no dependencies): import-linter reads the code, it does not run it.
-    session.install("--no-deps", *(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}")))
+    # Sources only (no dependencies): import-linter reads the code, it does not run it. The ComfyUI
+    # node pack (integrations/comfyui, issue 37) has contracts of its own.
+    session.install(
+        "--no-deps",
+        *(arg for pkg in PACKAGES for arg in ("-e", f"packages/{pkg}")),
+        *INTEGRATIONS_EDITABLE,
+    )
     session.run("lint-imports")
 
 

@@ -24,6 +24,10 @@ MASK_SENSES: tuple[str, ...] = get_args(MaskSense)
 ALPHA_THRESHOLD = 0.5
 """An object pixel is one above this (gaffer-diffusion's photo mask threshold)."""
 
+SURROUNDING_RIM = 0.95
+"""A mask whose object covers this share of the picture's border pixels surrounds the frame: it is
+the background, the mask read in the wrong sense (an object photo shows its object inside the frame)."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class PhotoItem:
@@ -149,6 +153,12 @@ def _check_object(node: str, what: str, alpha: np.ndarray, index: int, fix: str)
         raise NodeInputError(
             f"{node}: {what}{item} marks the whole picture as the object; {fix} if the object is "
             "the other colour, or connect a mask with background around the object."
+        )
+    rim = np.concatenate([fg[0], fg[-1], fg[1:-1, 0], fg[1:-1, -1]])
+    if rim.mean() >= SURROUNDING_RIM:
+        raise NodeInputError(
+            f"{node}: {what}{item} marks the picture's whole border as the object, which would "
+            f"surround the frame: the mask is inverted; {fix}."
         )
 
 
