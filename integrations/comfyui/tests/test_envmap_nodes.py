@@ -37,6 +37,12 @@ def test_load_bundled_and_file_keeps_linear_float32(
     env, preview = nodes["NeuralGafferLoadEnvmap"]().load(str(tmp_path / "sun.exr"), "raise")
     assert env.label == "sun.exr" and float(env.radiance_linear.max()) == 5000.0
     assert preview.shape == (1, 8, 16, 3)
+    changed = nodes["NeuralGafferLoadEnvmap"].IS_CHANGED
+    before = changed(str(tmp_path / "sun.exr"), "raise")
+    sun[2, 6] = 1.0
+    write_envmap(tmp_path / "sun.exr", sun)
+    assert changed(str(tmp_path / "sun.exr"), "raise") != before  # an edited file is read again
+    assert changed("no-such-map", "raise") == "no-such-map|raise"
 
 
 def test_load_refusals_name_the_input(

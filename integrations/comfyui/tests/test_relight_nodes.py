@@ -70,6 +70,28 @@ def test_load_model_gaffer_tiny(tiny: Any, lib: ModuleType) -> None:
     assert tiny.sampling(3, 2.0).num_inference_steps == 3
 
 
+def test_load_model_folder_relights_with_its_own_settings(
+    nodes: dict[str, type], courtyard: Any, tmp_path: Path
+) -> None:
+    """One of our model folders (a random-init `tiny` preset saved with its own suggested
+    sampling) loads through the node, which samples with that suggestion, and relights."""
+    from gaffer_diffusion.loading import save_pretrained
+    from gaffer_diffusion.suggested import SuggestedSampling
+    from gaffer_diffusion.testing import tiny_model
+
+    own = SuggestedSampling(num_inference_steps=2, guidance_scale=1.0, compat="default")
+    save_pretrained(tiny_model(), tmp_path / "m", suggested=own)
+    (model,) = nodes["NeuralGafferLoadModel"]().load(str(tmp_path / "m"), "", "cpu", "float32")
+    assert (
+        model.suggested.num_inference_steps == 2 and model.sampling(0, -1.0).guidance_scale == 1.0
+    )
+    image = torch.rand(1, 24, 24, 3, generator=torch.Generator().manual_seed(1))
+    mask = torch.zeros(1, 24, 24)
+    mask[:, 6:18, 8:16] = 1.0
+    out, _ = _relight(nodes, model, image, courtyard, mask=mask, mask_sense="white = object")
+    assert out.shape == (1, 24, 24, 3)
+
+
 def test_load_model_refusals(nodes: dict[str, type], tmp_path: Path) -> None:
     load = nodes["NeuralGafferLoadModel"]().load
     with pytest.raises(ValueError, match="`model` '/no/such/folder' is not an existing folder"):

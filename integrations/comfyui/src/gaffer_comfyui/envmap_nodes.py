@@ -118,6 +118,16 @@ class NeuralGafferLoadEnvmap:
             }
         }
 
+    @classmethod
+    def IS_CHANGED(cls, envmap: str, sanitize: str) -> str:
+        """ComfyUI reruns the node when this changes: the file's modification time and size, so an
+        edited map on disk is read again (a missing file: its name, and `load` explains)."""
+        try:
+            stat = resolve_envmap("NeuralGafferLoadEnvmap", envmap).stat()
+        except (NodeInputError, OSError):
+            return f"{envmap}|{sanitize}"
+        return f"{envmap}|{sanitize}|{stat.st_mtime_ns}|{stat.st_size}"
+
     def load(self, envmap: str, sanitize: str) -> tuple[GafferEnvmap, Any]:
         node = "NeuralGafferLoadEnvmap"
         if sanitize not in SANITIZE_POLICIES:
