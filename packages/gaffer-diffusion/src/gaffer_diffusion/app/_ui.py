@@ -4,24 +4,23 @@ Import this module only after `server.py` has set Gradio's environment (analytic
 Gradio reads both when it is imported.
 """
 
-import functools
-import hashlib
-import html
-import itertools
 import logging
-import re
-import shutil
-import threading
 import time
-from collections import deque
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import gradio as gr
-import numpy as np
-from PIL import Image
 
+from gaffer_diffusion.app._insert_ui import build_insert_tab
+from gaffer_diffusion.app._page import (
+    ENVMAP_SUFFIXES,
+    OUTPUT_BUTTONS,
+    Jobs,
+    digest,
+    envmap_path,
+    save_png,
+    shown_in_page,
+)
 from gaffer_diffusion.app.engine import (
     AUTO_MASK_NOTE,
     MP4_UNAVAILABLE,
@@ -34,114 +33,24 @@ from gaffer_diffusion.app.engine import (
     write_gif,
     write_mp4,
 )
-from gaffer_diffusion.errors import GafferDiffusionError
 
 logger = logging.getLogger(__name__)
 
 DEFAULT_HDRI = "sunrise"
 """The bundled map selected when the page opens (the shipped example's input lighting)."""
 
-ENVMAP_SUFFIXES = (".exr", ".hdr")
-"""Uploads the environment-map field accepts (gaffer-envmap reads both)."""
-
-OUTPUT_BUTTONS: list[Any] = ["download", "fullscreen"]
-"""Buttons on result images (no "share": that uploads to Hugging Face Spaces)."""
-
-KEEP_JOBS = 8
-"""Output folders kept on disk; older ones are deleted (Gradio has copied what the page shows)."""
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-_CACHE_DIRS = re.compile(r"[^\s'\"`]*/[0-9a-f]{64}/")
-"""Gradio's upload cache folders (`.../<sha256>/`), cut from messages: the file name is what a user knows."""
-
-
-def _page_message(exc: BaseException) -> str:
-    """`exc`'s message for the page: no server paths, HTML special characters escaped."""
-    return html.escape(_CACHE_DIRS.sub("", str(exc)), quote=False)
-
-
-def _shown_in_page(fn: F) -> F:
-    """Turn the library's expected errors into a `gr.Error` the page shows as one readable message."""
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except gr.Error:
-            raise
-        except Exception as exc:
-            # gaffer-envmap's errors (unreadable EXR, not 2:1) carry their own fix, like ours
-            ours = isinstance(exc, GafferDiffusionError) or type(exc).__module__.startswith(
-                "gaffer_envmap"
-            )
-            if not ours and not isinstance(exc, OSError | ValueError):
-                logger.exception("unexpected error in %s", fn.__name__)
-                raise gr.Error(
-                    f"Internal error ({type(exc).__name__}); the server log has the details."
-                ) from exc
-            logger.info("%s refused: %s", fn.__name__, exc)
-            raise gr.Error(
-                _page_message(exc), title="Cannot relight", print_exception=False
-            ) from exc
-
-    return wrapper  # type: ignore[return-value]
-
-
-class _Jobs:
-    """Per-request output folders under the app's temporary root, only the newest `KEEP_JOBS` kept."""
-
-    def __init__(self, root: Path) -> None:
-        self._root = root
-        self._dirs: deque[Path] = deque()
-        self._count = itertools.count()
-        self._lock = threading.Lock()
-
-    def new(self) -> Path:
-        with self._lock:
-            path = self._root / f"job-{next(self._count):06d}"
-            path.mkdir(parents=True)
-            self._dirs.append(path)
-            while len(self._dirs) > KEEP_JOBS:
-                shutil.rmtree(self._dirs.popleft(), ignore_errors=True)
-        return path
-
-
-def _digest(path: str | Path) -> str:
-    """SHA-256 of a file (Gradio keeps an upload's bytes, so the automatic mask is recognised)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def _save_png(path: Path, arr: np.ndarray) -> str:
-    Image.fromarray(arr).save(path)
-    return str(path)
-
-
-def _envmap_path(bundled: str | None, upload: str | None) -> str:
-    """The uploaded map if there is one, else the chosen bundled HDRI."""
-    from gaffer_envmap.bundled import bundled_hdri
-
-    if upload:
-        if Path(upload).suffix.lower() not in ENVMAP_SUFFIXES:
-            raise gr.Error(
-                f"The environment map must be an .exr or .hdr file, not {html.escape(Path(upload).name, quote=False)}.",
-                title="Cannot relight",
-                print_exception=False,
-            )
-        return upload
-    if not bundled:
-        raise gr.Error("Choose a bundled HDRI or upload an .exr/.hdr map.", print_exception=False)
-    return str(bundled_hdri(bundled))
+_shown_in_page = shown_in_page("Cannot relight")
 
 
 def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
-    """The page: inputs (photo, mask, model, lighting), live lighting previews, relight, turntable.
+    """The page: the model picker, then two tabs. "Relight": inputs (photo, mask, lighting), live
+    lighting previews, relight, turntable. "Insert into a photo": `_insert_ui.build_insert_tab`.
 
-    API endpoints (for `gradio_client`): `/preview`, `/auto_mask`, `/relight`, `/turntable`.
+    API endpoints (for `gradio_client`): `/preview`, `/auto_mask`, `/relight`, `/turntable`, `/insert`.
     """
     from gaffer_envmap.bundled import bundled_hdris
 
-    jobs = _Jobs(jobs_root)
+    jobs = Jobs(jobs_root)
     source_maps = jobs_root / "source-maps"  # maps made by lighting sources from words
     text_sources = engine.text_sources()
     hdris = list(bundled_hdris())
@@ -155,8 +64,8 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
     ) -> str:
         """A lighting source's map of the words when one is chosen, else the upload or the HDRI."""
         if source:
-            return str(engine.source_envmap_path(source, words or "", source_maps))
-        return _envmap_path(hdri, envfile)
+            return str(engine.sourceenvmap_path(source, words or "", source_maps))
+        return envmap_path(hdri, envfile)
 
     @_shown_in_page
     def preview(
@@ -231,7 +140,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
 
     def _mask_text(prepared: PhotoInput, mask: str | None, auto_digest: str) -> str:
         # the automatic mask: computed here (no mask), or the one put in the mask field, unchanged
-        shown_auto = bool(mask) and bool(auto_digest) and _digest(mask) == auto_digest
+        shown_auto = bool(mask) and bool(auto_digest) and digest(mask) == auto_digest
         return f" {AUTO_MASK_NOTE}" if prepared.auto_mask or shown_auto else ""
 
     @_shown_in_page
@@ -245,8 +154,8 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         if mask and not auto_digest:
             return gr.skip(), "", ""
         out = jobs.new()
-        path = _save_png(out / "auto_mask.png", engine.auto_mask(photo))
-        return path, _digest(path), AUTO_MASK_NOTE
+        path = save_png(out / "auto_mask.png", engine.auto_mask(photo))
+        return path, digest(path), AUTO_MASK_NOTE
 
     @_shown_in_page
     def relight(
@@ -278,15 +187,15 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
             0,
             (source, words),
         )
-        relit = _save_png(out / "relit.png", result.frames[0])
+        relit = save_png(out / "relit.png", result.frames[0])
         status = (
             f"Relit with {result.model} ({result.steps} step(s)) in {seconds:.1f} s, at "
             f"{_size_text(prepared, result)}.{_mask_text(prepared, mask, auto_digest)}"
         )
         return (
-            _save_png(out / "input.png", result.input_rgb),
+            save_png(out / "input.png", result.input_rgb),
             # the mask beside the output: the photo's at full size, the crop's with the crop
-            _save_png(
+            save_png(
                 out / "mask.png", result.mask if result.output_size == "model" else prepared.mask
             ),
             relit,
@@ -344,177 +253,212 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
         title="gaffer: relight an object", analytics_enabled=False, delete_cache=(600, 3600)
     ) as demo:
         gr.Markdown(
-            "# gaffer: relight an object from one photo\n"
-            "Upload a photo of an object (an RGBA PNG with a transparent background, or an RGB photo: "
-            "its mask is estimated and shown, and you can upload a better one in its place), choose "
-            "the lighting, and relight it at the photo's full size. Everything runs on this machine."
+            "# gaffer: relight an object from one photo, or insert it into another\n"
+            "**Relight**: upload a photo of an object (an RGBA PNG with a transparent background, or an "
+            "RGB photo: its mask is estimated and shown, and you can upload a better one in its "
+            "place), choose the lighting, and relight it at the photo's full size. **Insert into a "
+            "photo**: place it in a background photo, lit by that photo, with a shadow. Everything "
+            "runs on this machine."
         )
-        with gr.Row():
-            with gr.Column():
-                photo = gr.Image(
-                    label="Photo (RGBA, or RGB: its mask is estimated below)",
-                    type="filepath",
-                    image_mode=None,
-                    sources=["upload", "clipboard"],
-                    elem_id="photo",
-                    height=260,
-                )
-                mask = gr.Image(
-                    label="Mask (white = object) for photos without alpha: automatic (GrabCut), "
-                    "replace it by uploading yours",
-                    type="filepath",
-                    image_mode=None,
-                    sources=["upload"],
-                    elem_id="mask",
-                    height=160,
-                )
-                mask_is_auto = gr.State("")  # SHA-256 of the automatic mask shown, or ""
-                model = gr.Dropdown(choices=labels, value=labels[0], label="Model", elem_id="model")
-            with gr.Column():
-                hdri = gr.Dropdown(
-                    choices=hdris,
-                    value=DEFAULT_HDRI if DEFAULT_HDRI in hdris else hdris[0],
-                    label="Bundled HDRI",
-                    elem_id="hdri",
-                )
-                envfile = gr.File(
-                    label="...or upload an .exr/.hdr map (used instead while present)",
-                    file_types=list(ENVMAP_SUFFIXES),
-                    type="filepath",
-                    elem_id="envfile",
-                    height=90,
-                )
-                with gr.Accordion("...or lighting from words (a lighting source)", open=False):
-                    light_source = gr.Dropdown(
-                        choices=[("none: the map above", ""), *((n, n) for n in text_sources)],
-                        value="",
-                        label="Lighting source (sky: the built-in grammar; others: installed "
-                        "plugins, docs/tutorials/skies.md)",
-                        elem_id="light_source",
-                    )
-                    light_text = gr.Textbox(
-                        label="Words (press Enter)",
-                        placeholder="golden hour from the left",
-                        elem_id="light_text",
-                    )
-                az = gr.Slider(
-                    -180, 180, value=0, step=1, label="Camera azimuth (deg)", elem_id="azimuth"
-                )
-                el = gr.Slider(
-                    -90, 90, value=0, step=1, label="Camera elevation (deg)", elem_id="elevation"
-                )
-                spin = gr.Slider(
-                    0, 360, value=0, step=1, label="Light spin about up (deg)", elem_id="spin"
-                )
+        model = gr.Dropdown(choices=labels, value=labels[0], label="Model", elem_id="model")
+        with gr.Tabs():
+            with gr.Tab("Relight", id="relight_tab", elem_id="relight_tab"):
                 with gr.Row():
-                    ldr = gr.Image(
-                        label="E_L (LDR, camera frame)",
+                    with gr.Column():
+                        photo = gr.Image(
+                            label="Photo (RGBA, or RGB: its mask is estimated below)",
+                            type="filepath",
+                            image_mode=None,
+                            sources=["upload", "clipboard"],
+                            elem_id="photo",
+                            height=260,
+                        )
+                        mask = gr.Image(
+                            label="Mask (white = object) for photos without alpha: automatic (GrabCut), "
+                            "replace it by uploading yours",
+                            type="filepath",
+                            image_mode=None,
+                            sources=["upload"],
+                            elem_id="mask",
+                            height=160,
+                        )
+                        mask_is_auto = gr.State("")  # SHA-256 of the automatic mask shown, or ""
+                    with gr.Column():
+                        hdri = gr.Dropdown(
+                            choices=hdris,
+                            value=DEFAULT_HDRI if DEFAULT_HDRI in hdris else hdris[0],
+                            label="Bundled HDRI",
+                            elem_id="hdri",
+                        )
+                        envfile = gr.File(
+                            label="...or upload an .exr/.hdr map (used instead while present)",
+                            file_types=list(ENVMAP_SUFFIXES),
+                            type="filepath",
+                            elem_id="envfile",
+                            height=90,
+                        )
+                        with gr.Accordion(
+                            "...or lighting from words (a lighting source)", open=False
+                        ):
+                            light_source = gr.Dropdown(
+                                choices=[
+                                    ("none: the map above", ""),
+                                    *((n, n) for n in text_sources),
+                                ],
+                                value="",
+                                label="Lighting source (sky: the built-in grammar; others: installed "
+                                "plugins, docs/tutorials/skies.md)",
+                                elem_id="light_source",
+                            )
+                            light_text = gr.Textbox(
+                                label="Words (press Enter)",
+                                placeholder="golden hour from the left",
+                                elem_id="light_text",
+                            )
+                        az = gr.Slider(
+                            -180,
+                            180,
+                            value=0,
+                            step=1,
+                            label="Camera azimuth (deg)",
+                            elem_id="azimuth",
+                        )
+                        el = gr.Slider(
+                            -90,
+                            90,
+                            value=0,
+                            step=1,
+                            label="Camera elevation (deg)",
+                            elem_id="elevation",
+                        )
+                        spin = gr.Slider(
+                            0,
+                            360,
+                            value=0,
+                            step=1,
+                            label="Light spin about up (deg)",
+                            elem_id="spin",
+                        )
+                        with gr.Row():
+                            ldr = gr.Image(
+                                label="E_L (LDR, camera frame)",
+                                interactive=False,
+                                buttons=OUTPUT_BUTTONS,
+                                format="png",
+                                elem_id="ldr",
+                                height=140,
+                            )
+                            hdr = gr.Image(
+                                label="E_H (log HDR, camera frame)",
+                                interactive=False,
+                                buttons=OUTPUT_BUTTONS,
+                                format="png",
+                                elem_id="hdr",
+                                height=140,
+                            )
+                        view = gr.Image(
+                            label="Environment seen from the camera (centre-left: behind the object; "
+                            "centre-right: behind the camera)",
+                            interactive=False,
+                            buttons=OUTPUT_BUTTONS,
+                            format="png",
+                            elem_id="camera_view",
+                            height=140,
+                        )
+                with gr.Accordion("Sampling and turntable", open=False):
+                    with gr.Row():
+                        steps = gr.Number(
+                            value=None,
+                            precision=0,
+                            label="Steps (empty: the model's suggestion)",
+                            elem_id="steps",
+                        )
+                        seed = gr.Number(value=0, precision=0, label="Seed", elem_id="seed")
+                        frames = gr.Slider(
+                            2,
+                            engine.config.max_frames,
+                            value=12,
+                            step=1,
+                            label="Turntable frames",
+                            elem_id="frames",
+                        )
+                        fps = gr.Slider(
+                            1, 30, value=12, step=1, label="Turntable fps", elem_id="fps"
+                        )
+                        output_size = gr.Radio(
+                            choices=[
+                                ("the photo's full size", "photo"),
+                                ("the model's object crop", "model"),
+                            ],
+                            value="photo",
+                            label="Output size (turntables: up to --max-turntable-side "
+                            f"{engine.config.max_turntable_side} px)",
+                            elem_id="output_size",
+                        )
+                with gr.Row():
+                    relight_btn = gr.Button("Relight", variant="primary", elem_id="relight")
+                    turntable_btn = gr.Button("Turntable", elem_id="turntable")
+                status = gr.Markdown(elem_id="status")
+                with gr.Row():
+                    prepared = gr.Image(
+                        label="Model input (object crop on white)",
                         interactive=False,
                         buttons=OUTPUT_BUTTONS,
-                        format="png",
-                        elem_id="ldr",
-                        height=140,
+                        type="filepath",
+                        elem_id="prepared",
+                        height=256,
                     )
-                    hdr = gr.Image(
-                        label="E_H (log HDR, camera frame)",
+                    prepared_mask = gr.Image(
+                        label="Mask used",
                         interactive=False,
                         buttons=OUTPUT_BUTTONS,
-                        format="png",
-                        elem_id="hdr",
-                        height=140,
+                        type="filepath",
+                        elem_id="prepared_mask",
+                        height=256,
                     )
-                view = gr.Image(
-                    label="Environment seen from the camera (centre-left: behind the object; "
-                    "centre-right: behind the camera)",
-                    interactive=False,
-                    buttons=OUTPUT_BUTTONS,
-                    format="png",
-                    elem_id="camera_view",
-                    height=140,
+                    relit = gr.Image(
+                        label="Relit",
+                        interactive=False,
+                        buttons=OUTPUT_BUTTONS,
+                        type="filepath",
+                        elem_id="relit",
+                        height=256,
+                    )
+                    spin_gif = gr.Image(
+                        label="Turntable",
+                        interactive=False,
+                        buttons=OUTPUT_BUTTONS,
+                        type="filepath",
+                        elem_id="turntable_gif",
+                        height=256,
+                    )
+                with gr.Row():
+                    relit_dl = gr.DownloadButton(
+                        "Download relit PNG", interactive=False, elem_id="download_relit"
+                    )
+                    gif_dl = gr.DownloadButton(
+                        "Download turntable GIF", interactive=False, elem_id="download_gif"
+                    )
+                    mp4_dl = gr.DownloadButton(
+                        "Download turntable MP4",
+                        interactive=False,
+                        visible=mp4 is not None,
+                        elem_id="download_mp4",
+                    )
+                gr.Markdown(
+                    f"*No MP4 download: {MP4_UNAVAILABLE}*" if mp4 is None else "",
+                    visible=mp4 is None,
+                    elem_id="mp4_note",
                 )
-        with gr.Accordion("Sampling and turntable", open=False):
-            with gr.Row():
-                steps = gr.Number(
-                    value=None,
-                    precision=0,
-                    label="Steps (empty: the model's suggestion)",
-                    elem_id="steps",
+            with gr.Tab("Insert into a photo", id="insert_tab", elem_id="insert_tab"):
+                build_insert_tab(
+                    engine,
+                    jobs,
+                    model,
+                    hdris=hdris,
+                    text_sources=text_sources,
+                    source_maps=source_maps,
                 )
-                seed = gr.Number(value=0, precision=0, label="Seed", elem_id="seed")
-                frames = gr.Slider(
-                    2,
-                    engine.config.max_frames,
-                    value=12,
-                    step=1,
-                    label="Turntable frames",
-                    elem_id="frames",
-                )
-                fps = gr.Slider(1, 30, value=12, step=1, label="Turntable fps", elem_id="fps")
-                output_size = gr.Radio(
-                    choices=[
-                        ("the photo's full size", "photo"),
-                        ("the model's object crop", "model"),
-                    ],
-                    value="photo",
-                    label="Output size (turntables: up to --max-turntable-side "
-                    f"{engine.config.max_turntable_side} px)",
-                    elem_id="output_size",
-                )
-        with gr.Row():
-            relight_btn = gr.Button("Relight", variant="primary", elem_id="relight")
-            turntable_btn = gr.Button("Turntable", elem_id="turntable")
-        status = gr.Markdown(elem_id="status")
-        with gr.Row():
-            prepared = gr.Image(
-                label="Model input (object crop on white)",
-                interactive=False,
-                buttons=OUTPUT_BUTTONS,
-                type="filepath",
-                elem_id="prepared",
-                height=256,
-            )
-            prepared_mask = gr.Image(
-                label="Mask used",
-                interactive=False,
-                buttons=OUTPUT_BUTTONS,
-                type="filepath",
-                elem_id="prepared_mask",
-                height=256,
-            )
-            relit = gr.Image(
-                label="Relit",
-                interactive=False,
-                buttons=OUTPUT_BUTTONS,
-                type="filepath",
-                elem_id="relit",
-                height=256,
-            )
-            spin_gif = gr.Image(
-                label="Turntable",
-                interactive=False,
-                buttons=OUTPUT_BUTTONS,
-                type="filepath",
-                elem_id="turntable_gif",
-                height=256,
-            )
-        with gr.Row():
-            relit_dl = gr.DownloadButton(
-                "Download relit PNG", interactive=False, elem_id="download_relit"
-            )
-            gif_dl = gr.DownloadButton(
-                "Download turntable GIF", interactive=False, elem_id="download_gif"
-            )
-            mp4_dl = gr.DownloadButton(
-                "Download turntable MP4",
-                interactive=False,
-                visible=mp4 is not None,
-                elem_id="download_mp4",
-            )
-        gr.Markdown(
-            f"*No MP4 download: {MP4_UNAVAILABLE}*" if mp4 is None else "",
-            visible=mp4 is None,
-            elem_id="mp4_note",
-        )
 
         light_inputs = [model, hdri, envfile, az, el, spin, light_source, light_text]
         previews = [ldr, hdr, view]

@@ -76,9 +76,9 @@ class InsertSettings:
         InputValueError: a shadow mode the app does not offer, a step count outside 1..1000.
     """
 
-    at_xy: tuple[float, float] | None = None
-    height_px: float | None = None
-    fov_deg: float = BACKDROP_FOV_DEG
+    at_xy: tuple[float | int, float | int] | None = None
+    height_px: float | int | None = None
+    fov_deg: float | int = BACKDROP_FOV_DEG
     key_light: KeyLight | None = None
     shadow: InsertShadow = "2d"
     seed: int = 0
@@ -181,7 +181,9 @@ def key_light_from_click(
 
 
 def key_light_pixel(
-    azimuth_deg: float, elevation_deg: float, preview_wh: tuple[int, int] = KEY_PREVIEW_WH
+    azimuth_deg: float | int,
+    elevation_deg: float | int,
+    preview_wh: tuple[int, int] = KEY_PREVIEW_WH,
 ) -> tuple[float, float]:
     """Where a key light is on the key-light preview: `(x, y)` in pixel-edge coordinates (the inverse
     of `key_light_from_click`)."""
@@ -230,7 +232,9 @@ def lighting_panorama(env: EnvironmentMap, key_light: KeyLight | None = None) ->
 
 
 def placement_preview(
-    background_rgb: np.ndarray, at_xy: tuple[float, float], height_px: float | None
+    background_rgb: np.ndarray,
+    at_xy: tuple[float | int, float | int],
+    height_px: float | int | None,
 ) -> np.ndarray:
     """The placement preview: the background (shrunk to `PLACE_PREVIEW_SIDE`) with a crosshair on the
     object's lowest centre point and, given a height, a bar as tall as the object will be.
@@ -258,7 +262,10 @@ def placement_preview(
 
 
 def key_light_of(
-    azimuth_deg: float, elevation_deg: float, strength: float, size_deg: float
+    azimuth_deg: float | int,
+    elevation_deg: float | int,
+    strength: float | int,
+    size_deg: float | int,
 ) -> KeyLight | None:
     """The key light of the tab's sliders, or None at strength 0 (as `insert` without `--key-light`).
 
