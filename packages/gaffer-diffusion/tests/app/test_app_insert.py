@@ -209,10 +209,23 @@ def test_the_lighting_panorama_puts_straight_ahead_in_the_middle() -> None:
     env = ins.light_from_photo(
         np.full((H, W, 3), 0.4, np.float32), ins.BackgroundCamera(width=W, height=H)
     )
-    shown = lighting_panorama(env, ins.KeyLight(azimuth_deg=90.0, elevation_deg=30.0))
+    key = ins.KeyLight(azimuth_deg=90.0, elevation_deg=30.0)
+    shown = lighting_panorama(env, key)
     assert shown.shape == (256, 512, 3)
     x, y = key_light_pixel(90.0, 30.0)
     assert tuple(shown[math.floor(y), math.floor(x)]) == MARKER
+    # the picture agrees with the marker: the key light's disc is under it, the photo in the middle
+    lit = ins.light_from_photo(
+        np.full((H, W, 3), 0.4, np.float32), ins.BackgroundCamera(width=W, height=H), key
+    )
+    bare = lighting_panorama(lit).sum(-1)
+    peak_y, peak_x = np.unravel_index(np.argmax(bare), bare.shape)
+    assert abs(peak_x - x) <= 4 and abs(peak_y - y) <= 4, ((peak_x, peak_y), (x, y))
+    photo = np.zeros((H, W, 3), np.float32)
+    photo[:, W // 2 :] = 1.0  # a photo bright on its right half: bright just right of the middle
+    half = lighting_panorama(ins.light_from_photo(photo, ins.BackgroundCamera(width=W, height=H)))
+    row = half[128].astype(int).sum(-1)
+    assert row[262:280].mean() > row[232:250].mean() + 100
 
 
 # ----- the page -----

@@ -222,7 +222,8 @@ def lighting_panorama(env: EnvironmentMap, key_light: KeyLight | None = None) ->
         raise InputValueError(f"The map is in the {env.convention!r} convention, not 'blender'.")
     pw, ph = KEY_PREVIEW_WH
     small = env if env.height == ph // 2 else resize_conservative(env, ph // 2)
-    rolled = np.roll(small.radiance_linear, -small.width // 4, axis=1)  # world +y to the middle
+    # u' = u + 0.25: world +y (u = 0.25, straight ahead of the level camera) to the middle column
+    rolled = np.roll(small.radiance_linear, small.width // 4, axis=1)
     img = np.repeat(np.repeat(tonemap_preview(rolled), 2, axis=0), 2, axis=1)
     if key_light is not None:
         x, y = key_light_pixel(key_light.azimuth_deg, key_light.elevation_deg)
