@@ -64,7 +64,7 @@ def build_app(engine: Engine, jobs_root: Path) -> gr.Blocks:
     ) -> str:
         """A lighting source's map of the words when one is chosen, else the upload or the HDRI."""
         if source:
-            return str(engine.sourceenvmap_path(source, words or "", source_maps))
+            return str(engine.source_envmap_path(source, words or "", source_maps))
         return envmap_path(hdri, envfile)
 
     @_shown_in_page
