@@ -330,3 +330,26 @@ def test_settings_refuse_what_the_app_does_not_offer() -> None:
     with pytest.raises(InputValueError, match="`steps`"):
         InsertSettings(num_inference_steps=0)
     assert key_light_of(10.0, 20.0, 0.0, 5.0) is None  # strength 0: as insert without --key-light
+
+
+@pytest.mark.slow
+def test_the_insert_endpoint_over_the_wire(app_server: Any, files, tmp_path) -> None:
+    """`/insert` through gradio_client against the session's server: the uploads, empty X / Y (the
+    default placement) and height 0 (as in its photo) arrive as the CLI's defaults."""
+    pytest.importorskip("gradio_client", reason="the app tests drive the app with gradio_client")
+    from gradio_client import Client, handle_file
+
+    client = Client(app_server.url, verbose=False, download_files=str(tmp_path / "downloads"))
+    args = _insert_args(
+        files,
+        obj=handle_file(str(OBJECT)),
+        background=handle_file(str(files["bg"])),
+        x=None,
+        y=None,
+    )
+    args[6] = 0  # height: as in the object photo
+    result, _, download, status = client.predict(*args, api_name="/insert")
+    want = _cli(files, tmp_path / "cli.png", "--key-light", "90,35,3,5")
+    assert np.abs(_read(result).astype(int) - want.astype(int)).max() == 0
+    assert _read(download["value"]).tolist() == _read(result).tolist()
+    assert "default" in status
