@@ -124,3 +124,74 @@ def test_relight_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> 
     browser.save_screenshot(str(shot))
     assert shot.stat().st_size > 10_000
     print(f"browser test: page to relit image in {seconds:.1f} s; screenshot {shot}")
+
+
+def _click_at(browser: Any, img: Any, x: float, y: float) -> None:
+    """Click the pixel (x, y) of a shown image, as a user sees it (scaled to fit, centred)."""
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    w, h, nw, nh = browser.execute_script(
+        "const r = arguments[0].getBoundingClientRect();"
+        "return [r.width, r.height, arguments[0].naturalWidth, arguments[0].naturalHeight];",
+        img,
+    )
+    s = min(w / nw, h / nh)
+    cx = (w - nw * s) / 2 + (x + 0.5) * s - w / 2  # offsets from the element's centre
+    cy = (h - nh * s) / 2 + (y + 0.5) * s - h / 2
+    ActionChains(browser).move_to_element_with_offset(img, round(cx), round(cy)).click().perform()
+
+
+def test_insert_in_a_browser(app_server: Any, browser: Any, tmp_path: Path) -> None:
+    """The insert tab: upload an object and a background, click where it stands and where the key
+    light is, set the height, insert; the fields follow the clicks (within the one or two image
+    pixels a screen pixel covers when the preview is shown smaller)."""
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support import expected_conditions as ec
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    from gaffer_diffusion.app.inserting import key_light_from_click
+    from gaffer_diffusion.pretrained import example_dataset_path
+
+    obj = example_dataset_path() / "objects" / "procedural_002" / "lit" / "000_000.png"
+    grad = np.zeros((480, 640, 3), np.uint8)
+    grad[..., 0] = np.linspace(60, 150, 640)[None, :].astype(np.uint8)
+    grad[..., 1] = np.linspace(150, 90, 480)[:, None].astype(np.uint8)
+    grad[..., 2] = 120
+    Image.fromarray(grad).save(tmp_path / "background.png")
+    wait = WebDriverWait(browser, WAIT_S)
+    browser.get(app_server.url)
+    tab = "//button[@role='tab'][contains(., 'Insert into a photo')]"
+    wait.until(ec.element_to_be_clickable((By.XPATH, tab))).click()
+    upload = (By.CSS_SELECTOR, "#insert_object input[type=file]")
+    wait.until(ec.presence_of_element_located(upload)).send_keys(str(obj))
+    browser.find_element(By.CSS_SELECTOR, "#insert_background input[type=file]").send_keys(
+        str(tmp_path / "background.png")
+    )
+    place = wait.until(ec.presence_of_element_located((By.CSS_SELECTOR, "#insert_place img")))
+    wait.until(lambda d: d.execute_script("return arguments[0].naturalWidth", place) == 640)
+
+    def value(css: str) -> float:
+        return float(browser.find_element(By.CSS_SELECTOR, css).get_attribute("value") or "nan")
+
+    _click_at(browser, place, 400, 420)
+    wait.until(lambda d: abs(value("#insert_x input") - 400) <= 2)
+    assert abs(value("#insert_y input") - 420) <= 2
+    key = wait.until(ec.presence_of_element_located((By.CSS_SELECTOR, "#insert_key_view img")))
+    wait.until(lambda d: d.execute_script("return arguments[0].naturalWidth", key) == 512)
+    _click_at(browser, key, 150, 60)
+    want_az, want_el = key_light_from_click((150, 60))
+    azimuth = "#insert_key_azimuth input[type=number]"
+    wait.until(lambda d: abs(value(azimuth) - want_az) < 3)
+    assert abs(value("#insert_key_elevation input[type=number]") - want_el) < 3
+    height = browser.find_element(By.CSS_SELECTOR, "#insert_height input[type=number]")
+    height.clear()
+    height.send_keys("200\n")
+    browser.find_element(By.CSS_SELECTOR, "#insert").click()
+    status = (By.CSS_SELECTOR, "#insert_status")
+    wait.until(ec.text_to_be_present_in_element(status, "Inserted with"))
+    text = browser.find_element(*status).text
+    assert "640x480" in text and "200 px tall" in text and "2d shadow" in text, text
+    wait.until(lambda d: d.find_elements(By.CSS_SELECTOR, "#insert_result img"))
+    shot = _artifact_dir(tmp_path) / "app_insert_browser.png"
+    browser.save_screenshot(str(shot))
+    assert shot.stat().st_size > 10_000

@@ -395,13 +395,13 @@ def build_insert_tab(
     private: dict[str, Any] = {"api_visibility": "private", "show_progress": "hidden"}
     placement_inputs = [background, at_x, at_y, height]
     background.change(show_placement, placement_inputs, place, **private)
-    for field in (at_x, at_y):
+    # .input: typed into the box or dragged (the last value drawn); not the click's own updates
+    for field in (at_x, at_y, height):
         field.input(show_placement, placement_inputs, place, trigger_mode="always_last", **private)
-    height.release(show_placement, placement_inputs, place, **private)
     place.select(click_placement, [background, height], [at_x, at_y, place], **private)
     key_inputs = [background, lighting, words, fov, key_az, key_el, key_strength, key_size]
     for slider in (key_az, key_el, key_strength, key_size, fov):
-        slider.release(show_lighting, key_inputs, key_view, **private)
+        slider.input(show_lighting, key_inputs, key_view, trigger_mode="always_last", **private)
     background.change(show_lighting, key_inputs, key_view, **private)
     lighting.change(show_lighting, key_inputs, key_view, **private)
     words.submit(show_lighting, key_inputs, key_view, **private)
