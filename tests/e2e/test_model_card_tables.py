@@ -45,9 +45,16 @@ def test_the_shipped_rows_measured_the_shipped_weights() -> None:
     label = f"{release['name']} {release['version']}"
     rows = [r for r in card._read(card.TEST_SPLIT) if r.label.startswith(card.SHIPPED_LABEL)]
     assert rows, "no test rows of the shipped model"
+    estimator = ROOT / (
+        "packages/gaffer-diffusion/src/gaffer_diffusion/weights/gaffer-normals/unet/"
+        "diffusion_pytorch_model.safetensors"
+    )
+    estimator_sha = hashlib.sha256(estimator.read_bytes()).hexdigest()
     for row in rows:
         assert row.settings["release"] == label
         assert row.settings["unet_sha256"] == sha
+        if row.settings["hint_geometry"] == "estimated":
+            assert row.settings["normal_estimator_sha256"] == estimator_sha
 
 
 def test_readme_headline_matches_the_result_files() -> None:
