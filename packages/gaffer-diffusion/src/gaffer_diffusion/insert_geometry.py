@@ -904,8 +904,7 @@ def composite(
     base = np.array(background.rgb, np.float32, copy=True)
     h, w = base.shape[:2]
     touched = np.zeros((h, w), bool) if shadow is None else shadow < 1.0
-    if touched.any():
-        assert shadow is not None
+    if shadow is not None and touched.any():
         lin = dt.srgb_to_linear(base[touched]) * shadow[touched][:, None]
         base[touched] = dt.linear_to_srgb(lin)
     t, l, b, r = placed.box
