@@ -14,6 +14,7 @@ Result files:
 
 import argparse
 import datetime as dt
+import hashlib
 import json
 import math
 import os
@@ -126,6 +127,67 @@ def machine(threads: int) -> dict[str, Any]:
         "date_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "load_average_start": [round(x, 2) for x in os.getloadavg()],
         **cuda_info(),
+    }
+
+
+def sha256_file(path: Path) -> str:
+    """Hex sha256 of a file's bytes (read in 1 MiB chunks)."""
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _repo_relative(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(REPO))
+    except ValueError:
+        return str(path)
+
+
+def model_provenance(folder: Path | None = None) -> dict[str, Any]:
+    """Which model a result measured (issue 34): name, release version, the sha256 of every weights file.
+
+    `folder` is a gaffer-diffusion model folder (`save_pretrained` / `gaffer-diffusion export`);
+    None means the shipped gaffer-tiny. `shipped` is True only when the folder IS the shipped one, so
+    a result of an exported checkpoint or an older release never reads as the shipped model's. A model
+    whose radiance hints use the learned normal estimator also names the estimator's weights, which
+    change its outputs as much as its own.
+    """
+    from gaffer_diffusion.geometry.estimator import shipped_normal_estimator_path
+    from gaffer_diffusion.pretrained import gaffer_tiny_path
+
+    shipped_folder = gaffer_tiny_path().resolve()
+    root = (folder or shipped_folder).resolve()
+    manifest = json.loads((root / "gaffer_model.json").read_text())
+    release = manifest.get("release") if isinstance(manifest.get("release"), dict) else None
+    weights = {_repo_relative(f): sha256_file(f) for f in sorted(root.rglob("*.safetensors"))}
+    if not weights:
+        raise FileNotFoundError(f"{root}: no *.safetensors weights to name")
+    out: dict[str, Any] = {
+        "name": release["name"] if release else manifest.get("config", {}).get("name"),
+        # an exported training checkpoint has no release: it is labelled so, never as a version
+        "version": release["version"] if release else "unreleased checkpoint",
+        "shipped": root == shipped_folder,
+        "folder": _repo_relative(root),
+        "weights_sha256": weights,
+    }
+    if manifest.get("config", {}).get("hint_geometry") == "estimated":
+        est = shipped_normal_estimator_path().resolve()
+        out["normal_estimator_weights_sha256"] = {
+            _repo_relative(f): sha256_file(f) for f in sorted(est.rglob("*.safetensors"))
+        }
+    return out
+
+
+def data_provenance(root: Path, manifest: str = "dataset.json") -> dict[str, Any]:
+    """A render split or dataset folder named by its manifest's sha256 (it lists every object and map)."""
+    path = root / manifest
+    return {
+        "path": _repo_relative(root),
+        "manifest": manifest,
+        "manifest_sha256": sha256_file(path),
     }
 
 

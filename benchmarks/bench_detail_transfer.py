@@ -184,7 +184,13 @@ def evaluate(pairs: Any, quick: bool) -> dict[str, Any]:
         }
         for name in VARIANTS
     }
-    return {"model": "gaffer-tiny", "model_resolution": size, "pairs": rows, "summary": summary}
+    # which weights (issue 34): `load_model(None)` is the shipped gaffer-tiny
+    return {
+        "model": common.model_provenance(),
+        "model_resolution": size,
+        "pairs": rows,
+        "summary": summary,
+    }
 
 
 def figure(result: dict[str, Any], meta: dict[str, Any]) -> Any:
@@ -254,6 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             "timing": "paste_back alone, median of repeated calls per pair, then the spread over pairs",
         },
         "machine": meta,
+        "data": common.data_provenance(root),
         **result,
     }
     written = common.write_results(NAME, payload, figure(result, meta), args.update_baseline)

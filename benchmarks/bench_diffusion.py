@@ -453,7 +453,9 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
     schedulers = ("ddim", "dpmsolver++", "unipc")
     steps = (1, 2, 5, 10, 20, 50) if args.quick else (1, 2, 5, 10, 20, 35, 50)
     threads_before = torch.get_num_threads()
-    torch.set_num_threads(1)  # as in part 2: one thread, comparable across machines
+    # as in part 2: one thread (comparable across machines) unless --threads asks for more
+    threads = args.threads if args.threads > 0 else 1
+    torch.set_num_threads(threads)
     pipe = RelightPipeline(load_gaffer_tiny().model, RuntimeConfig(device="cpu", dtype="float32"))
     from gaffer_envmap.bundled import bundled_hdris
 
@@ -519,6 +521,7 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
         "quick": args.quick,
         "config": {
             "model": "gaffer-tiny (shipped weights, pixel space, 128x128, radiance hints)",
+            "steps": list(steps),
             "data": (
                 "gaffer_diffusion/data/example: an unseen object, lighting 0 as input, targets "
                 "under its other lightings (the 8 bundled HDRIs, 4 of them seen in training), "
@@ -529,14 +532,17 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
             "background": "input kept outside its alpha (EvaluationConfig.keep_background)",
             "mirror": "ddim+mirror rows: SamplingConfig.mirror_average (2 UNet passes per step)",
             "seed": 0,
-            "torch_threads": 1,
+            "torch_threads": threads,
             "timing": "one evaluate_dataset call per row: sampling + PNG reading + scoring, per pair",
         },
+        # what was measured (issue 34): the weights' and the example's manifest sha256
+        "model": common.model_provenance(),
+        "data": common.data_provenance(example_dataset_path()),
         "baselines": base,
-        "machine": meta,
+        "machine": {**meta, "torch_threads": threads},
         "rows": rows,
     }
-    fig = quality_figure(rows, base, {**meta, "torch_threads": 1})
+    fig = quality_figure(rows, base, {**meta, "torch_threads": threads})
     return [str(p) for p in common.write_results(NAME_QUALITY, payload, fig, args.update_baseline)]
 
 
@@ -574,7 +580,7 @@ def quality_figure(rows: list[dict[str, Any]], base: dict[str, float], meta: dic
         )
         ax.set_ylabel(label)
         ax.set_xscale("log")
-        ax.set_xlabel("ms per image (CPU, 1 thread; labels = steps)")
+        ax.set_xlabel(f"ms per image (CPU, {meta['torch_threads']} thread(s); labels = steps)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     fig.suptitle(
