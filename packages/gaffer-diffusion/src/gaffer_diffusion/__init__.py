@@ -16,6 +16,7 @@ _EXPORTS: dict[str, str] = {
     "CheckpointMismatchError": "errors",
     "CheckpointNotFoundError": "errors",
     "ConfigError": "errors",
+    "DefaultSampling": "suggested",
     "EncodedConditions": "conditioning",
     "GafferDiffusionError": "errors",
     "ImageEncoderConfig": "configs",
@@ -26,6 +27,7 @@ _EXPORTS: dict[str, str] = {
     "ModelConfig": "configs",
     "NeuralGafferModel": "models",
     "NonFiniteOutputError": "errors",
+    "PAPER_SAMPLING": "suggested",
     "PRESETS": "configs",
     "RelightOutput": "pipelines",
     "RelightPipeline": "pipelines",
@@ -42,7 +44,9 @@ _EXPORTS: dict[str, str] = {
     "encode_conditions": "conditioning",
     "expand_conv_in": "models",
     "get_preset": "configs",
+    "latent_mode_for": "suggested",
     "lighting_from_envmap": "conditioning",
+    "load_pipeline": "pipelines",
     "make_scheduler": "schedulers",
 }
 
@@ -95,16 +99,20 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         RelightPipeline,
         RuntimeConfig,
         SamplingConfig,
+        load_pipeline,
     )
     from gaffer_diffusion.schedulers import SCHEDULERS, make_scheduler
+    from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling, latent_mode_for
 
 
 __all__ = [
+    "PAPER_SAMPLING",
     "PRESETS",
     "SCHEDULERS",
     "CheckpointMismatchError",
     "CheckpointNotFoundError",
     "ConfigError",
+    "DefaultSampling",
     "EncodedConditions",
     "GafferDiffusionError",
     "ImageEncoderConfig",
@@ -130,6 +138,8 @@ __all__ = [
     "encode_conditions",
     "expand_conv_in",
     "get_preset",
+    "latent_mode_for",
     "lighting_from_envmap",
+    "load_pipeline",
     "make_scheduler",
 ]

@@ -5,31 +5,58 @@ DDIM step and gaffer-envmap's "default" lighting encoding, the authors' checkpoi
 guidance 3 and their "neural-gaffer" encoding (official implementation §2). A self-trained model relit
 with another model's encoding silently relights wrong, so the setting travels with the weights:
 `gaffer-diffusion export` writes it from the training config (the encoding and framing trained with,
-the sampler validated with), and every path that samples a model (`relight`, `evaluate`, `demo`,
-gaffer-nerf's stages) reads it with `read_suggested_sampling` unless the user overrides a value.
+the sampler validated with). `gaffer_diffusion.load_pipeline` reads it once (`read_default_sampling`)
+into the pipeline's frozen `default_sampling`; every path that samples a model (`relight`, `evaluate`,
+`demo`, the app, gaffer-nerf's stages) only overrides it (`DefaultSampling.override`,
+`DefaultSampling.sampling_config`).
 
 Reading it is a JSON read (no torch), so commands can check arguments against it before loading weights.
 """
 
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointMismatchError
 
+if TYPE_CHECKING:
+    from gaffer_diffusion.pipelines.config import SamplingConfig
+
 __all__ = [
+    "PAPER_SAMPLING",
     "PAPER_SUGGESTION",
     "SUGGESTION_KEY",
+    "DefaultSampling",
+    "LatentModeName",
     "SuggestedSampling",
+    "latent_mode_for",
+    "read_default_sampling",
     "read_suggested_sampling",
     "suggestion_from_training_config",
 ]
 
+LatentModeName = Literal["mode", "sample"]
+"""Conditioning latents from the VAE posterior's "mode" or a "sample" (`SamplingConfig.latent_mode`)."""
+
+
+def latent_mode_for(compat: str) -> LatentModeName:
+    """The latent mode that goes with a lighting encoding: the authors' posterior "sample" under their
+    "neural-gaffer" encoding (their inference, official implementation §2), else the posterior "mode".
+
+    The one place this rule is written; everything that samples a model asks here.
+
+    Example:
+        >>> latent_mode_for("neural-gaffer"), latent_mode_for("default")
+        ('sample', 'mode')
+    """
+    return "sample" if compat == "neural-gaffer" else "mode"
+
+
 SUGGESTION_KEY = "suggested_sampling"
-"""The manifest key holding a `SuggestedSampling`."""
+"""The manifest key holding a `DefaultSampling`."""
 
 
 if TYPE_CHECKING:
@@ -39,8 +66,10 @@ else:  # from a manifest any value reaches `compat`; `__post_init__` names a wro
 
 
 @dataclass(frozen=True, kw_only=True)
-class SuggestedSampling:
-    """How a model is meant to be sampled.
+class DefaultSampling:
+    """How a model is meant to be sampled: read once from its folder, then only overridden.
+
+    `latent_mode` follows from `compat` (`latent_mode_for`) unless an override names it.
 
     Attributes:
         num_inference_steps: DDIM steps.
@@ -85,8 +114,64 @@ class SuggestedSampling:
         body.pop("source")
         return body
 
+    @property
+    def latent_mode(self) -> LatentModeName:
+        """The latent mode that goes with `compat` (`latent_mode_for`)."""
+        return latent_mode_for(self.compat)
 
-PAPER_SUGGESTION = SuggestedSampling(
+    def override(
+        self,
+        *,
+        num_inference_steps: int | None = None,
+        guidance_scale: float | None = None,
+        average_samples: int | None = None,
+        mirror_average: bool | None = None,
+        compat: _CompatArg | None = None,
+        object_fraction: float | None = None,
+        source: str | None = None,
+    ) -> "DefaultSampling":
+        """This setting with every value that is not None replaced (checked as on reading).
+
+        Example:
+            >>> PAPER_SAMPLING.override(guidance_scale=2.0).num_inference_steps
+            50
+        """
+        given = {
+            "num_inference_steps": num_inference_steps,
+            "guidance_scale": guidance_scale,
+            "average_samples": average_samples,
+            "mirror_average": mirror_average,
+            "compat": compat,
+            "object_fraction": object_fraction,
+            "source": source,
+        }
+        return replace(self, **{k: v for k, v in given.items() if v is not None})
+
+    def sampling_config(
+        self, *, latent_mode: LatentModeName | None = None, **fields: Any
+    ) -> "SamplingConfig":
+        """This setting as a `SamplingConfig`; `latent_mode` None: the one `compat` brings.
+
+        Args:
+            latent_mode: overrides the rule of `latent_mode_for`.
+            fields: other `SamplingConfig` fields (scheduler, eta, nonfinite, ...).
+        """
+        from gaffer_diffusion.pipelines.config import SamplingConfig
+
+        return SamplingConfig(
+            num_inference_steps=self.num_inference_steps,
+            guidance_scale=float(self.guidance_scale),
+            average_samples=self.average_samples,
+            mirror_average=bool(self.mirror_average),
+            latent_mode=latent_mode or self.latent_mode,
+            **fields,
+        )
+
+
+SuggestedSampling = DefaultSampling
+"""The former name of `DefaultSampling` (kept for code written against gaffer-diffusion 0.x)."""
+
+PAPER_SAMPLING = DefaultSampling(
     num_inference_steps=50,
     guidance_scale=3.0,
     compat="neural-gaffer",
@@ -94,40 +179,53 @@ PAPER_SUGGESTION = SuggestedSampling(
 )
 """The paper's sampling, for the authors' checkpoint and for model folders that record none."""
 
+PAPER_SUGGESTION = PAPER_SAMPLING
+"""The former name of `PAPER_SAMPLING`."""
 
-def read_suggested_sampling(folder: Path) -> SuggestedSampling:
-    """The suggestion recorded in `folder/gaffer_model.json`, or `PAPER_SUGGESTION` when none is.
 
-    A folder without our manifest (the authors' `checkpoint-80000/`) gets the paper's setting.
+def read_default_sampling(folder: Path | None) -> DefaultSampling:
+    """The setting recorded in `folder/gaffer_model.json`, or `PAPER_SAMPLING` when none is.
+
+    A folder without our manifest (the authors' `checkpoint-80000/`) gets the paper's setting;
+    None reads the shipped gaffer-tiny's folder (`pretrained.gaffer_tiny_path()`), the model every
+    command uses without `--checkpoint`.
 
     Raises:
         CheckpointMismatchError: the manifest is unreadable or its block is malformed (named).
     """
+    if folder is None:
+        from gaffer_diffusion import pretrained
+
+        folder = pretrained.gaffer_tiny_path()
     path = Path(folder) / MANIFEST_NAME
     if not path.is_file():
-        return PAPER_SUGGESTION
+        return PAPER_SAMPLING
     try:
         manifest = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CheckpointMismatchError(f"{path} is not readable JSON ({exc}).") from exc
     block = manifest.get(SUGGESTION_KEY) if isinstance(manifest, dict) else None
     if block is None:
-        return PAPER_SUGGESTION
+        return PAPER_SAMPLING
     if not isinstance(block, dict):
         raise CheckpointMismatchError(f"{path}: `{SUGGESTION_KEY}` is not an object.")
-    known = set(SuggestedSampling.__dataclass_fields__) - {"source"}
+    known = set(DefaultSampling.__dataclass_fields__) - {"source"}
     unknown = sorted(set(block) - known)
     if unknown:
         raise CheckpointMismatchError(
             f"{path}: `{SUGGESTION_KEY}` has unknown keys {unknown}; upgrade gaffer-diffusion."
         )
     try:
-        return SuggestedSampling(**block, source=f"the model's own ({path})")
+        return DefaultSampling(**block, source=f"the model's own ({path})")
     except (TypeError, ValueError) as exc:
         raise CheckpointMismatchError(f"{path}: `{SUGGESTION_KEY}` is malformed: {exc}.") from exc
 
 
-def suggestion_from_training_config(config: dict[str, Any]) -> SuggestedSampling:
+read_suggested_sampling = read_default_sampling
+"""The former name of `read_default_sampling`."""
+
+
+def suggestion_from_training_config(config: dict[str, Any]) -> DefaultSampling:
     """What a trained model suggests, from its training config (`train_state.json`'s `config`).
 
     The encoding and framing it was trained with, the sampler it was validated with, and the mirror
@@ -136,7 +234,7 @@ def suggestion_from_training_config(config: dict[str, Any]) -> SuggestedSampling
     """
     data = config.get("data", {}) if isinstance(config, dict) else {}
     val = config.get("validation", {}) if isinstance(config, dict) else {}
-    return SuggestedSampling(
+    return DefaultSampling(
         num_inference_steps=int(val.get("num_inference_steps", 50)),
         guidance_scale=float(val.get("guidance_scale", 3.0)),
         mirror_average=float(data.get("mirror_prob", 0.0)) > 0.0,

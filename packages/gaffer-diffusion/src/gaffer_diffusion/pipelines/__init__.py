@@ -1,4 +1,4 @@
-"""Inference pipelines: `RelightPipeline` (single-image relighting, paper §3.2)."""
+"""Inference pipelines: `RelightPipeline` (single-image relighting, paper §3.2) and `load_pipeline`."""
 
 from gaffer_diffusion.pipelines.batched import (
     ConditionsBuilder,
@@ -13,7 +13,8 @@ from gaffer_diffusion.pipelines.config import (
     RuntimeConfig,
     SamplingConfig,
 )
-from gaffer_diffusion.pipelines.relight import RelightOutput, RelightPipeline
+from gaffer_diffusion.pipelines.load import load_pipeline
+from gaffer_diffusion.pipelines.relight import RelightOutput, RelightPipeline, default_sampling_for
 
 __all__ = [
     "AttentionBackend",
@@ -25,6 +26,8 @@ __all__ = [
     "RelightPipeline",
     "RuntimeConfig",
     "SamplingConfig",
+    "default_sampling_for",
+    "load_pipeline",
     "relight_built_batches",
     "relight_in_batches",
 ]

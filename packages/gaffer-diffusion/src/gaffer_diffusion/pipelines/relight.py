@@ -16,6 +16,7 @@ import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import cast
 
 import torch
@@ -36,6 +37,7 @@ from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode
 from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
 from gaffer_diffusion.schedulers import Sampler, make_scheduler
+from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling, read_default_sampling
 
 logger = logging.getLogger(__name__)
 
@@ -59,6 +61,21 @@ class RelightOutput:
     retried_in_fp32: tuple[int, ...] = ()
 
 
+GAFFER_TINY_NAME = "gaffer-tiny"
+"""`ModelConfig.name` of gaffer-tiny (`get_preset("gaffer-tiny")`, the shipped weights)."""
+
+
+def default_sampling_for(model: NeuralGafferModel) -> DefaultSampling:
+    """The sampling of a model built in memory (not loaded from a folder by `load_pipeline`).
+
+    A model of gaffer-tiny's config (the shipped weights loaded by hand, or a retrain) gets what the
+    shipped gaffer-tiny folder records (read from its manifest); any other the paper's.
+    """
+    if model.config.name == GAFFER_TINY_NAME:
+        return read_default_sampling(None)
+    return PAPER_SAMPLING
+
+
 def _nonfinite_items(x: Tensor) -> list[int]:
     return torch.nonzero(~torch.isfinite(x.flatten(1)).all(dim=1)).flatten().tolist()
 
@@ -69,6 +86,13 @@ class RelightPipeline:
     Args:
         model: the networks (moved in place to `runtime.device` / `runtime.dtype`).
         runtime: device, dtype, attention kernels and `torch.compile`.
+        default_sampling: how the model is meant to be sampled (`load_pipeline` reads it from the
+            model folder); None: `default_sampling_for(model)`.
+        source: the folder the weights came from, for reports (None: built in memory).
+
+    Attributes:
+        default_sampling: the model's own sampling, frozen; callers override it
+            (`DefaultSampling.override`, `DefaultSampling.sampling_config`), never re-read it.
 
     Example:
         >>> import torch
@@ -81,8 +105,18 @@ class RelightPipeline:
         torch.Size([1, 3, 64, 64])
     """
 
-    def __init__(self, model: NeuralGafferModel, runtime: RuntimeConfig | None = None) -> None:
+    def __init__(
+        self,
+        model: NeuralGafferModel,
+        runtime: RuntimeConfig | None = None,
+        *,
+        default_sampling: DefaultSampling | None = None,
+        source: Path | None = None,
+    ) -> None:
         self.runtime = runtime or RuntimeConfig()
+        # read once (`load_pipeline` reads the model folder); callers only override it
+        self.default_sampling: DefaultSampling = default_sampling or default_sampling_for(model)
+        self.source = source
         self.model = model.to(device=self.runtime.device, dtype=self.runtime.weights_dtype).eval()
         match self.runtime.attention:
             case "sdpa":
