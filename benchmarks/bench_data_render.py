@@ -4,7 +4,8 @@ and adaptive sampling. Answers: which setting reaches the authors' quality (128 
 
 Scene: pymeshlab's sample cow (real mesh shipped in a package) lit by two bundled CC0 HDRIs, one view,
 camera as the paper's renders. Everything is rendered by gaffer-data's own worker processes
-(`gaffer_data.render.bench.bench_render`), so the numbers include Blender's per-image overhead.
+(`_render_bench.bench_render` beside this script), so the numbers include Blender's per-image
+overhead.
 
 Run: `python benchmarks/bench_data_render.py [--quick] [--update-baseline]`.
 """
@@ -25,8 +26,9 @@ NAME = "data_render"
 def main(argv: list[str] | None = None) -> int:
     args = common.parse_args(__doc__.splitlines()[0], argv)
     try:
+        from _render_bench import RenderBenchConfig, bench_render
+
         from gaffer_data.recipes import sample_meshes
-        from gaffer_data.render.bench import RenderBenchConfig, bench_render
         from gaffer_data.render.plan import scan_envmaps
     except ImportError as exc:  # pragma: no cover - depends on the installed extras
         common.log(f"skipping {NAME}: gaffer-data[render,filter] is not installed ({exc})")

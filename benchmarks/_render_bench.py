@@ -6,11 +6,13 @@ setting. PSNR = 10 log10(1 / MSE) on the 8-bit display PNGs scaled to [0, 1], RG
 with their alpha (the paper's evaluation images), averaged over images. Seconds per image are the
 worker's own timings (render + save, without Blender's ~1 s start per object).
 
-This lives in `gaffer_data.render` (it drives Blender workers); the benchmarks session wraps it.
+Benchmark code, not part of the gaffer-data wheel: `bench_data_render.py` runs it through gaffer-data's
+own render workers (`gaffer_data.render.runner.render_dataset`), and tests/benchmarks/test_render_bench.py
+checks it on a 32 px scene. Not a benchmark itself (`nox -s bench` runs only `bench_*.py`).
 
 Example:
-    >>> from gaffer_data.render.bench import RenderBenchConfig, bench_render  # doctest: +SKIP
-    >>> result = bench_render(objects, pool, "bench/", RenderBenchConfig(resolutions=(128,)))  # doctest: +SKIP
+    >>> import _render_bench as rb  # doctest: +SKIP
+    >>> result = rb.bench_render(objects, pool, "bench/", rb.RenderBenchConfig(resolutions=(128,)))  # doctest: +SKIP
     >>> result.fastest_reaching(35.0)  # doctest: +SKIP
 """
 
