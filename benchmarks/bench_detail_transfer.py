@@ -109,17 +109,15 @@ def evaluate(pairs: Any, quick: bool) -> dict[str, Any]:
     from gaffer_diffusion.evaluation import pair_lighting
     from gaffer_diffusion.metrics import load_perceptual, masked_psnr, object_crop_box
     from gaffer_diffusion.photo import paste_back, prepare_photo, read_photo
-    from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
+    from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig
+    from gaffer_diffusion.suggested import read_default_sampling
 
     model = load_model(None).model
     size = model.config.resolution
     pipe = RelightPipeline(model, RuntimeConfig(device="cpu"))
-    sampling = SamplingConfig(
-        num_inference_steps=pretrained.GAFFER_TINY_STEPS,
-        guidance_scale=pretrained.GAFFER_TINY_GUIDANCE,
-        average_samples=pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
-        mirror_average=pretrained.GAFFER_TINY_MIRROR_AVERAGE,
-    )
+    # the model's own setting, from its manifest (what `relight` runs when no flag overrides it)
+    suggested = read_default_sampling(pretrained.gaffer_tiny_path())
+    sampling = suggested.sampling_config()
     perceptual = load_perceptual()
     reps = 3 if quick else 7
     rows: list[dict[str, Any]] = []
@@ -129,7 +127,7 @@ def evaluate(pairs: Any, quick: bool) -> dict[str, Any]:
         if photo.alpha is None:
             raise RuntimeError(f"{pair.input_image} has no alpha (render with transparent film)")
         prepared = prepare_photo(photo, photo.alpha, size=size, compat="default")
-        lighting = pair_lighting([pair], size, pretrained.GAFFER_TINY_COMPAT)
+        lighting = pair_lighting([pair], size, suggested.compat)
         cond = RelightingConditions(
             image=prepared.model_input.image,
             mask=prepared.model_input.mask,
@@ -188,6 +186,7 @@ def evaluate(pairs: Any, quick: bool) -> dict[str, Any]:
     return {
         "model": common.model_provenance(),
         "model_resolution": size,
+        "sampling": suggested.to_json(),
         "pairs": rows,
         "summary": summary,
     }
@@ -255,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             f"cow under {', '.join(HELD_OUT_HDRIS)} (gaffer-tiny's test split); render --resolution "
             f"{RESOLUTION} --samples {SAMPLES} --lightings 3 --views 1 --no-area-light",
             "input_lighting": 0,
-            "sampling": "gaffer-tiny's model card settings (gaffer_diffusion.pretrained)",
+            "sampling": "gaffer-tiny's suggested sampling, from its manifest (see 'sampling')",
             "metrics": "PSNR over the alpha mask and ST-LPIPS on the object's crop, images on white",
             "timing": "paste_back alone, median of repeated calls per pair, then the spread over pairs",
         },

@@ -442,13 +442,11 @@ def steps_figure(rows: list[dict[str, Any]], pname: str, meta: dict[str, Any]) -
 def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
     from gaffer_diffusion import RelightPipeline, RuntimeConfig, SamplingConfig
     from gaffer_diffusion.evaluation import EvaluationConfig, dataset_pairs, evaluate_dataset
-    from gaffer_diffusion.pretrained import (
-        GAFFER_TINY_COMPAT,
-        GAFFER_TINY_GUIDANCE,
-        GAFFER_TINY_OBJECT_FRACTION,
-        example_dataset_path,
-        load_gaffer_tiny,
-    )
+    from gaffer_diffusion.pretrained import example_dataset_path, gaffer_tiny_path, load_gaffer_tiny
+    from gaffer_diffusion.suggested import read_default_sampling
+
+    # guidance, lighting encoding and framing from the model's manifest; steps and scheduler swept
+    suggested = read_default_sampling(gaffer_tiny_path())
 
     schedulers = ("ddim", "dpmsolver++", "unipc")
     steps = (1, 2, 5, 10, 20, 50) if args.quick else (1, 2, 5, 10, 20, 35, 50)
@@ -471,13 +469,13 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
             sampling=SamplingConfig(
                 num_inference_steps=n,
                 scheduler=sched,
-                guidance_scale=GAFFER_TINY_GUIDANCE,
+                guidance_scale=suggested.guidance_scale,
                 mirror_average=mirror,
             ),
             batch_size=16,
             baselines=baseline is None,
-            compat=GAFFER_TINY_COMPAT,  # type: ignore[arg-type]
-            object_fraction=GAFFER_TINY_OBJECT_FRACTION,  # the framing it was trained with
+            compat=suggested.compat,
+            object_fraction=suggested.object_fraction,  # the framing it was trained with
         )
         result = evaluate_dataset(pipe, pairs, cfg, perceptual=None)
         if baseline is None:
@@ -528,7 +526,8 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
                 "object-centred 75% crops"
             ),
             "pairs": len(pairs),
-            "guidance_scale": GAFFER_TINY_GUIDANCE,
+            "guidance_scale": suggested.guidance_scale,
+            "suggested_sampling": suggested.to_json(),
             "background": "input kept outside its alpha (EvaluationConfig.keep_background)",
             "mirror": "ddim+mirror rows: SamplingConfig.mirror_average (2 UNet passes per step)",
             "seed": 0,
