@@ -95,6 +95,31 @@ def _git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
+def _git_uncommitted() -> list[str] | None:
+    """Source files that differ from the recorded commit (the code measured is commit + these).
+
+    The machines are shared working trees: a run can measure code that is not yet committed, so the
+    record lists it rather than claiming the commit alone. Only package and benchmark code counts.
+    """
+    try:
+        out = subprocess.run(
+            ["git", "status", "--porcelain", "--", "packages", "benchmarks", "integrations"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=False,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    paths = [
+        line[3:]
+        for line in out.stdout.splitlines()
+        if line[3:].endswith(".py") and "/tests/" not in line[3:]
+    ]
+    return sorted(paths)
+
+
 def cuda_info() -> dict[str, Any]:
     """`{"cuda": "unavailable"}` or the GPU's name and memory."""
     if not torch.cuda.is_available():
@@ -124,6 +149,7 @@ def machine(threads: int) -> dict[str, Any]:
         "platform": platform.platform(),
         "gaffer_envmap": gaffer_envmap.__version__,
         "git_commit": _git_commit(),
+        "git_uncommitted_py": _git_uncommitted(),
         "date_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "load_average_start": [round(x, 2) for x in os.getloadavg()],
         **cuda_info(),
