@@ -8,8 +8,8 @@ Two modes:
   checkpoint.
 - `compat="default"`: rotation straight to the `size x size` grid in linear space, power-exact per
   channel to float round-off without a global gain (`filter="conservative"`, `conservative.py`, through
-  a fused numba kernel on the CPU; `filter="area"`, the default before issue 18, is within ~1% for most
-  maps), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
+  a fused numba kernel on the CPU; `filter="area"`, the default before "conservative", is within ~1%
+  for most maps), seam wrap, exact identity, no quantisation unless asked (then round-to-nearest), and an HDR
   normaliser taken from the SOURCE map (its peak after the same pre-filter), so it does not change as the
   camera turns, and the relative brightness of different maps survives... up to each map's own peak.
   See docs/encodings.md for a side-by-side figure.
@@ -39,6 +39,7 @@ from gaffer_envmap.rotate import (
     rotate_channels_first,
     source_height,
 )
+from gaffer_envmap.writers import quantize, quantize_float
 
 LDR_GAMMA = 2.2
 HDR_GAIN = 10.0
@@ -65,9 +66,7 @@ class LightingEncoding:
         """`[B, S, S, 3]` uint8 pair (round-to-nearest; exact for compat maps, which are already 8-bit)."""
 
         def q(t: Tensor) -> np.ndarray:
-            return (
-                torch.round(t.clamp(0, 1) * 255).to(torch.uint8).permute(0, 2, 3, 1).cpu().numpy()
-            )
+            return quantize(t.permute(0, 2, 3, 1))
 
         return q(self.ldr), q(self.hdr)
 
@@ -167,10 +166,11 @@ def encode_lighting(
     if compat == "neural-gaffer":
         spin = None
         if not (isinstance(spin_deg, float | int) and spin_deg == 0):
-            # the authors' sense (issue 15): D is their turntable frame k = D N / 360, Rz(-D) on the right
+            # the authors' sense (docs/encodings.md): D is their turntable frame k = D N / 360,
+            # Rz(-D) on the right
             spin = spin_matrices_neural_gaffer(spin_deg, src.shape[0], src.device)
         # One map at a time: the same values as one batched call (tested), and faster per map on the
-        # CPU, where the batch's float64 direction tensors no longer fit in cache (issue 18: 32 maps
+        # CPU, where the batch's float64 direction tensors no longer fit in cache (32 maps
         # at once did 0.75x the one-at-a-time rate in benchmarks/bench_envmap_preprocess.py).
         parts = [
             encode_neural_gaffer(
@@ -189,7 +189,7 @@ def encode_lighting(
         # The fused numba kernel (`_fast_cpu`); `conservative.rotate_conservative` is its twin.
         # No torch op on the way in: torch's OpenMP workers spin for a while after a parallel op and
         # took the cores from numba's (a 2-thread `isfinite` here made the kernel 12 ms instead of
-        # 9 ms per map, issue 18), so the finite check is numpy's.
+        # 9 ms per map), so the finite check is numpy's.
         from gaffer_envmap._fast_cpu import encode_conservative_cpu
         from gaffer_envmap.rotate import _spin_matrix
 
@@ -202,7 +202,7 @@ def encode_lighting(
         )
         ldr, hdr = torch.from_numpy(ldr_np), torch.from_numpy(hdr_np)
         if quantize:
-            ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
+            ldr, hdr = quantize_float(ldr), quantize_float(hdr)
         return LightingEncoding(ldr=ldr, hdr=hdr, compat=compat)
     if not bool(torch.isfinite(src).all()):  # NaN/Inf pixels would smear through the filters
         src = torch.nan_to_num(src, nan=0.0, posinf=0.0, neginf=0.0)
@@ -223,5 +223,5 @@ def encode_lighting(
     peak = src.amax(dim=(1, 2, 3)).reshape(-1, 1, 1, 1)
     ldr, hdr = _encode_finite(rotated, peak)
     if quantize:
-        ldr, hdr = torch.round(ldr * 255) / 255, torch.round(hdr * 255) / 255
+        ldr, hdr = quantize_float(ldr), quantize_float(hdr)
     return LightingEncoding(ldr=ldr, hdr=hdr, compat=compat)

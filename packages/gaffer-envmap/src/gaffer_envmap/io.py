@@ -32,9 +32,9 @@ from gaffer_envmap.io_exr import (
 )
 from gaffer_envmap.io_hdr import read_hdr, require_openimageio, write_hdr
 from gaffer_envmap.io_ldr import LdrEncoding, decode_to_linear, read_ldr
-from gaffer_envmap.io_ldr import write_png as _write_png
 from gaffer_envmap.sanitize import SanitizePolicy
 from gaffer_envmap.sanitize import sanitize as _sanitize
+from gaffer_envmap.writers import write_png as _write_png
 
 __all__ = [
     "READ_SUFFIXES",
@@ -261,7 +261,7 @@ def write_envmap(
 
 def check_write_suffix(path: str | os.PathLike[str], argument: str = "path") -> str:
     """The lower-case suffix of an environment-map destination, once its writer is known to be
-    installed: `write_envmap` calls it first, a command line before any work (issue 36).
+    installed: `write_envmap` calls it first, a command line before any work.
 
     Args:
         path: the destination.
@@ -298,12 +298,12 @@ def check_write_suffix(path: str | os.PathLike[str], argument: str = "path") -> 
 
 
 def write_png(path: str | os.PathLike[str], rgb01_or_uint8: np.ndarray) -> None:
-    """Write an 8-bit PNG, atomically (see `gaffer_envmap.io_ldr.write_png`).
+    """Write an 8-bit PNG (16-bit for uint16 input), atomically (`gaffer_envmap.writers.write_png`).
 
     Args:
         path: destination `.png`.
-        rgb01_or_uint8: `[H, W]` or `[H, W, 1|2|3|4]`; uint8 written as is, floats in [0, 1]
-            quantised with `np.rint(x * 255)` after clipping.
+        rgb01_or_uint8: `[H, W]` or `[H, W, 1|2|3|4]`; uint8 (or uint16) written as is, floats in
+            [0, 1] clipped and quantised (`gaffer_envmap.writers.quantize`: nearest, ties to even).
 
     Raises:
         ShapeError: wrong shape or dtype.

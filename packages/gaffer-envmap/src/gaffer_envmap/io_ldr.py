@@ -1,12 +1,10 @@
-"""8-bit PNG / JPEG read and PNG write through Pillow.
+"""8-bit PNG / JPEG reading through Pillow (PNGs are written by `gaffer_envmap.writers`).
 
 Reading returns the stored (encoded) values as float32 in [0, 1]; `decode_to_linear` turns them
 into linear radiance with an explicitly named encoding (env maps saved as PNG are usually sRGB; the
-Neural Gaffer data uses a pure 2.2 power). Writing quantises [0, 1] floats with round-to-nearest
-(`np.rint`, ties to even), not truncation (truncation biases every pixel by -0.5 LSB on average).
+Neural Gaffer data uses a pure 2.2 power).
 """
 
-import logging
 import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TypeGuard, assert_never, get_args
@@ -14,12 +12,9 @@ from typing import TYPE_CHECKING, Any, Literal, TypeGuard, assert_never, get_arg
 import numpy as np
 
 from gaffer_envmap._exr_header import MAX_PIXELS
-from gaffer_envmap.atomic import atomic_write
-from gaffer_envmap.errors import EnvmapReadError, NonFiniteError, ShapeError
+from gaffer_envmap.errors import EnvmapReadError
 
-__all__ = ["LdrEncoding", "decode_to_linear", "read_ldr", "write_png"]
-
-logger = logging.getLogger(__name__)
+__all__ = ["LdrEncoding", "decode_to_linear", "read_ldr"]
 
 LdrEncoding = Literal["srgb", "gamma2.2", "linear"]
 """How 8-bit values encode linear light.
@@ -142,69 +137,3 @@ def decode_to_linear(values: np.ndarray, encoding: _EncodingArg = "srgb") -> np.
     if encoding == "linear":
         return v
     assert_never(encoding)
-
-
-def _to_uint8(image: np.ndarray) -> np.ndarray:
-    arr = np.asarray(image)
-    if arr.dtype == np.uint8:
-        return arr
-    if arr.dtype == np.bool_ or not (
-        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-    ):
-        raise ShapeError("image", f"{arr.shape} {arr.dtype}", "a uint8 or float array")
-    if np.issubdtype(arr.dtype, np.integer):
-        raise ShapeError(
-            "image",
-            f"{arr.shape} {arr.dtype}",
-            "uint8 values or floats in [0, 1]",
-            "Convert integers explicitly (e.g. `(x / 65535).astype(np.float32)`).",
-        )
-    if not np.isfinite(arr).all():
-        raise NonFiniteError(
-            f"`image` holds {int((~np.isfinite(arr)).sum())} NaN/Inf value(s); tone-map and clean "
-            "it before writing a PNG."
-        )
-    outside = int(((arr < 0) | (arr > 1)).sum())
-    if outside:
-        logger.info("clipping %d value(s) outside [0, 1] for an 8-bit PNG", outside)
-    return np.rint(np.clip(arr, 0.0, 1.0) * 255.0).astype(np.uint8)
-
-
-def write_png(path: str | os.PathLike[str], image: np.ndarray) -> None:
-    """Write an 8-bit PNG, atomically.
-
-    Args:
-        path: destination (`.png`).
-        image: `[H, W]`, `[H, W, 1]`, `[H, W, 2]` (grey + alpha), `[H, W, 3]` or `[H, W, 4]`;
-            uint8 (written as is) or float in [0, 1] (clipped to [0, 1], then
-            `np.rint(x * 255)`). Values are written as given: encode linear light first.
-
-    Raises:
-        ShapeError: wrong shape or dtype.
-        NonFiniteError: float input with NaN or Inf.
-        EnvmapWriteError: the write failed; an existing file at `path` is left untouched.
-
-    Example:
-        >>> import tempfile
-        >>> p = tempfile.mkdtemp() + "/a.png"
-        >>> write_png(p, np.array([[[0.0, 0.5, 1.0]]]))
-        >>> (read_ldr(p) * 255).round().tolist()
-        [[[0.0, 128.0, 255.0]]]
-    """
-    from PIL import Image
-
-    arr = np.asarray(image)
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[..., 0]
-    if (
-        arr.ndim not in (2, 3)
-        or (arr.ndim == 3 and arr.shape[2] not in (2, 3, 4))
-        or 0 in arr.shape
-    ):
-        raise ShapeError("image", arr.shape, "[H, W], [H, W, 1|2|3|4] with H, W >= 1")
-    data = np.ascontiguousarray(_to_uint8(arr))
-
-    def _write(tmp: Path) -> None:
-        Image.fromarray(data).save(tmp, format="PNG")  # mode from the shape: L, LA, RGB, RGBA
-
-    atomic_write(path, _write)

@@ -3,6 +3,8 @@
 import numpy as np
 from PIL import Image, ImageDraw
 
+from gaffer_envmap.writers import quantize
+
 
 def srgb_encode(linear: np.ndarray) -> np.ndarray:
     """The sRGB transfer curve (IEC 61966-2-1) on [0, 1] linear values."""
@@ -13,7 +15,7 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
 def tonemap_preview(radiance_linear: np.ndarray, exposure: float | None = None) -> np.ndarray:
     """`[H, W, 3]` uint8 sRGB preview: exposure to put the median luminance at 0.18, Reinhard, sRGB.
 
-    NaN/Inf are drawn black. Deterministic (no randomness), round-to-nearest.
+    NaN/Inf are drawn black. Deterministic (no randomness), `gaffer_envmap.writers.quantize`d.
     """
     x = np.nan_to_num(
         np.asarray(radiance_linear, np.float64), nan=0.0, posinf=0.0, neginf=0.0
@@ -23,7 +25,7 @@ def tonemap_preview(radiance_linear: np.ndarray, exposure: float | None = None) 
         med = float(np.median(lum))
         exposure = 0.18 / med if med > 0 else 1.0
     y = x * exposure
-    return np.rint(srgb_encode(y / (1.0 + y)) * 255).astype(np.uint8)
+    return quantize(srgb_encode(y / (1.0 + y)))
 
 
 def contact_sheet(
