@@ -6,6 +6,7 @@ Reads gaffer-data renders through gaffer-data's public reader (`gaffer_data.data
 command line `gaffer-diffusion train --config CONFIG [--resume]`.
 """
 
+from gaffer_diffusion.training.batch import TrainItem
 from gaffer_diffusion.training.config import (
     CheckpointConfig,
     DataConfig,
@@ -21,11 +22,8 @@ from gaffer_diffusion.training.dataset import (
     KeySampler,
     RelightTrainDataset,
     TrainBatch,
-    TrainItem,
     batch_lighting,
-    check_lighting_compat,
     collate_items,
-    dataset_object_ids,
     encode_batch_lighting,
     split_object_ids,
 )
@@ -38,6 +36,7 @@ from gaffer_diffusion.training.loop import (
     load_checkpoint_model,
     train,
 )
+from gaffer_diffusion.training.objects import check_lighting_compat, dataset_object_ids
 from gaffer_diffusion.training.validation import ValidationResult
 
 __all__ = [

@@ -21,9 +21,9 @@ Non-finite loss or gradients never reach the weights: the step is skipped and co
 `TrainingDivergedError` raised.
 
 `train` orchestrates; each part lives in its own module: `objective` (the loss of one micro-batch),
-`step` (one optimiser step), `checkpointing` (resume point, save, restore), `run_log` (logged rows,
-progress bar), `validation_hook` (validation during training), `sigterm`. Setting up the accelerator,
-the networks and the data stays here.
+`step` (one optimiser step), `checkpointing` (resume point, save, restore), `tracking` (the metrics
+log, logged rows, progress bar), `validation` (validation during training), `sigterm`. Setting up the
+accelerator, the networks and the data stays here.
 """
 
 import dataclasses
@@ -62,23 +62,23 @@ from gaffer_diffusion.training.objective import TrainingObjective, cfg_dropout_m
 from gaffer_diffusion.training.objective import _mirror_views as _mirror_views
 from gaffer_diffusion.training.objective import _prediction_target as _prediction_target
 from gaffer_diffusion.training.objects import check_lighting_compat, dataset_object_ids
-from gaffer_diffusion.training.run_log import (
+from gaffer_diffusion.training.sigterm import SigtermFlag
+from gaffer_diffusion.training.step import StepParts, optimizer_step
+from gaffer_diffusion.training.tracking import (
     LogWindow,
+    MetricsLogger,
     log_due,
     log_window,
     open_progress,
     show_progress,
 )
-from gaffer_diffusion.training.sigterm import SigtermFlag
-from gaffer_diffusion.training.step import StepParts, optimizer_step
-from gaffer_diffusion.training.tracking import MetricsLogger
 from gaffer_diffusion.training.validation import (
+    TrainingValidation,
     ValidationResult,
     ValidationSet,
     build_validation_set,
     sampling_model,
 )
-from gaffer_diffusion.training.validation_hook import TrainingValidation
 
 __all__ = [
     "StepCallback",

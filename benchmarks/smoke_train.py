@@ -1,6 +1,10 @@
 """CPU smoke training: render a tiny dataset, train a small config, report the numbers honestly.
 
-    python -m gaffer_diffusion.training.smoke --out DIR [--minutes 3] [--threads 1]
+    python benchmarks/smoke_train.py --out DIR [--minutes 3] [--threads 1]
+
+Research scaffolding, not part of the gaffer-diffusion wheel (it reads the repository's
+`packages/gaffer-diffusion/configs/tiny-smoke.json` and drives the `gaffer-data` CLI): `nox -s
+smoke_train` runs it and checks its report. Not a benchmark (`nox -s bench` runs only `bench_*.py`).
 
 Stages (each reused when its output already exists in DIR):
 
@@ -42,9 +46,15 @@ from gaffer_diffusion.training.loop import load_checkpoint_model, train
 from gaffer_diffusion.training.tracking import read_log
 from gaffer_diffusion.training.validation import build_validation_set, validate
 
-logger = logging.getLogger("gaffer_diffusion.training.smoke")
+logger = logging.getLogger("smoke_train")
 
-CONFIG = Path(__file__).resolve().parents[3] / "configs" / "tiny-smoke.json"
+CONFIG = (
+    Path(__file__).resolve().parents[1]
+    / "packages"
+    / "gaffer-diffusion"
+    / "configs"
+    / "tiny-smoke.json"
+)
 
 
 def render_dataset(out: Path, *, procedural: int, views: int, lightings: int, samples: int) -> Path:
