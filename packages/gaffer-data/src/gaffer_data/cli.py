@@ -69,7 +69,7 @@ PYBULLET_RANDOM_MESHES = 1000
 
 
 def _check_render_args(args: argparse.Namespace) -> None:
-    """Cheap checks before any scan or Blender start (issue 17): one line naming the flag and the fix."""
+    """Cheap checks before any scan or Blender start: one line naming the flag and the fix."""
     from gaffer_data.errors import ConfigError
 
     if args.timeout is not None and not args.timeout > 0:
@@ -97,7 +97,7 @@ def _check_render_args(args: argparse.Namespace) -> None:
             f"`--world-map-resolution` is {args.world_map_resolution}; pass 0 (automatic)..16384."
         )
     _check_seed(args.seed)
-    # the dataset folder: its manifests are files, objects/ a folder (issue 36: before any scan)
+    # the dataset folder: its manifests are files, objects/ a folder (checked before any scan)
     check_output_dir(
         "--out",
         args.out,
@@ -565,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args))
     except GafferDataError as exc:  # with --debug (cli_failure) the traceback comes first
         return cli_failure(f"error: {exc.diagnostics()}", 2, args)
-    except GafferEnvmapError as exc:  # env-map I/O of a sibling package (issue 17)
+    except GafferEnvmapError as exc:  # env-map I/O of a sibling package: one line too
         return cli_failure(f"error: {exc}", 2, args)
     except KeyboardInterrupt:  # Ctrl-C: one line, not a traceback; outputs are written atomically
         return cli_failure(

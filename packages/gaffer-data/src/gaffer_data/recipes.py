@@ -153,7 +153,7 @@ def build_default_recipe(
     Raises:
         MissingDependencyError: bpy is needed for `procedural > 0` and is missing.
     """
-    # what the procedural objects need, checked before anything is written (issue 36)
+    # what the procedural objects need, checked before anything is written
     if (procedural > 0 or pybullet > 0) and importlib.util.find_spec("bpy") is None:
         raise missing_extra("bpy", "render")
     if pybullet > 0 and importlib.util.find_spec("pybullet_data") is None:
@@ -178,7 +178,7 @@ def build_default_recipe(
                 if not (folder / f.name).is_file():
                     shutil.copyfile(f, folder / f.name)
     if procedural > 0:
-        # all procedural objects or none (issue 17): built in a hidden staging folder, moved at the end
+        # all procedural objects or none: built in a hidden staging folder, moved at the end
         with atomic_files(objects / "procedural") as stage:
             cmd = [sys.executable, "-m", "gaffer_data.render.procedural", "--out", str(stage)]
             cmd += ["--count", str(procedural), "--seed", str(seed)]

@@ -14,7 +14,7 @@ reference twin; tests compare the two), in float32 with float64 only where sums 
    bits and short polynomials (relative error about 1e-7).
 
 Every loop but the scatter of step 3 is plain arithmetic over contiguous structure-of-arrays buffers
-that LLVM vectorises. What decides that, measured on the 2-core EPYC (issue 18): `error_model="numpy"`
+that LLVM vectorises. What decides that, measured on the 2-core EPYC: `error_model="numpy"`
 (numba's default Python error model guards every division with a ZeroDivisionError branch, which keeps
 a loop scalar: the encoding stage took 3.7 ms per 256 x 256 map with it, 0.43 ms without), mantissa
 bits read by an int -> float conversion rather than through a reinterpreting view, and floors written

@@ -149,7 +149,7 @@ def atomic_files(directory: str | os.PathLike[str]) -> Iterator[Path]:
     into a hidden staging folder inside `directory` (same file system), and only when the block ends
     without an error are they renamed into place, one `os.replace` each, a few microseconds apart.
     On an error or Ctrl-C the staging folder is removed, `directory` keeps exactly what it held before,
-    and a `directory` this call created is removed again when empty (issue 17: no partial outputs).
+    and a `directory` this call created is removed again when empty (no partial outputs).
     A kill -9 can leave only the hidden `.partial-*` folder, never a partial set under final names.
 
     Args:

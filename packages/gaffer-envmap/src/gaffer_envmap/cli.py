@@ -134,7 +134,7 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 
 def _cmd_rotate(args: argparse.Namespace) -> int:
-    check_output_file("dst", args.dst)  # outputs before any work (issue 36)
+    check_output_file("dst", args.dst)  # outputs checked before any work: nothing half-done
     check_not_an_input("dst", args.dst, [("src", args.src), ("--w2c", args.w2c)])
     check_write_suffix(args.dst, "dst")
     env = read_envmap(args.src, sanitize=args.sanitize)
@@ -169,7 +169,7 @@ def _cmd_encode(args: argparse.Namespace) -> int:
     )
     ldr, hdr = enc.to_uint8()
     out = Path(args.out_dir)
-    # both PNGs or neither: never a new ldr.png beside an old hdr.png (issue 17)
+    # both PNGs or neither: never a new ldr.png beside an old hdr.png
     with atomic_files(out) as stage:
         write_png(stage / "ldr.png", ldr[0])
         write_png(stage / "hdr.png", hdr[0])
@@ -187,7 +187,7 @@ def _cmd_augment(args: argparse.Namespace) -> int:
     out = Path(args.out_dir)
     stem = Path(args.src).stem
     pool = augment_pool(env, flips=args.flips, yaw_steps=args.yaw_steps)
-    with atomic_files(out) as stage:  # all maps or none (issue 17)
+    with atomic_files(out) as stage:  # all maps or none: no partial output
         for spec, aug in pool:
             write_envmap(stage / f"{stem}_{spec.tag}.exr", aug)
     print(f"wrote {len(pool)} maps to {out}")
@@ -205,7 +205,7 @@ def _cmd_procedural(args: argparse.Namespace) -> int:
         raise GafferEnvmapError(f"`--height` is {args.height}; pass 8 or more rows.")
     check_output_dir("--out-dir", args.out_dir, files=("proc_*.exr",))
     out = Path(args.out_dir)
-    with atomic_files(out) as stage:  # all maps or none (issue 17)
+    with atomic_files(out) as stage:  # all maps or none: no partial output
         for seed in range(args.first, args.first + args.count):
             write_envmap(stage / f"proc_{seed:04d}.exr", procedural_envmap(seed, args.height))
     print(
@@ -353,7 +353,8 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["conservative", "area", "bilinear"],
         default="conservative",
         help="conservative: power-exact per channel (default); area: box of bilinear sub-samples "
-        "(the default before issue 18, what gaffer-tiny was trained on); bilinear: one tap per pixel",
+        "(the default before conservative, what gaffer-tiny was trained on); bilinear: one tap per "
+        "pixel",
     )
     sp.add_argument(
         "--supersample",

@@ -1,5 +1,5 @@
 """`gaffer-envmap sky`: a physical sky (or a studio) as an HDR lat-long EXR, from angles, a place and
-a time, or words (issue 32 item 1).
+a time, or words.
 
 With `--source NAME` the words go to a lighting source instead (`gaffer_envmap.sources`: an installed
 plugin's text-to-HDR model, or the built-in grammar registered as "sky"); `--list-sources` lists them.
@@ -311,7 +311,7 @@ def _plan_source(args: argparse.Namespace) -> _SourcePlan:
 
 def _plan(args: argparse.Namespace, out: list[str]) -> SkyConfig | StudioConfig | _SourcePlan:
     """Every check and the scene to draw, before any pixel is computed."""
-    check_output_file("--out", args.out, suffixes=(".exr",))  # before any work (issue 36)
+    check_output_file("--out", args.out, suffixes=(".exr",))  # before any work
     if args.preview is not None:
         check_output_file("--preview", args.preview, suffixes=(".png",))
     if args.source is not None or args.source_option:

@@ -1,6 +1,6 @@
-"""The command lines' error boundary (issue 17), shared by all four gaffer CLIs: `--debug`, the one-line
+"""The command lines' error boundary, shared by all four gaffer CLIs: `--debug`, the one-line
 report of an expected failure, the exit-code epilog of `--help`, and the output-path checks every
-command runs before any work (`check_output_file`, `check_output_dir`; issue 36).
+command runs before any work (`check_output_file`, `check_output_dir`).
 
 A CLI-side module: it writes to stderr, which library modules never do (they raise `GafferError`s).
 """

@@ -6,10 +6,10 @@ The released checkpoint was trained on maps made this way, so it should be fed m
 1. output grid the size of the source, elevation +pi/2 (top) .. -pi/2 and azimuth +pi (left) .. -pi at
    pixel centres; d_local = (cos phi cos theta, sin phi cos theta, sin theta);
 2. d_world = d_local (A R) as row vectors, A = [[1,0,0],[0,0,-1],[0,1,0]], R the w2c rotation;
-   their turntable frame k of N multiplies on the right by Rz(-2 pi k / N) (issue 15, reading 1), so
-   `spin_deg = D` here is their frame k = D / 360 * N: the light turns by -D about world up
-   (clockwise seen from above), the OPPOSITE sense of the default mode's `spin_deg`;
-3. theta' = arccos(d_z) - 1e-6 (their offset, issue 15 reading 2), phi' = atan2(d_y, d_x),
+   their turntable frame k of N multiplies on the right by Rz(-2 pi k / N) (their inference script;
+   docs/encodings.md), so `spin_deg = D` here is their frame k = D / 360 * N: the light turns by -D
+   about world up (clockwise seen from above), the OPPOSITE sense of the default mode's `spin_deg`;
+3. theta' = arccos(d_z) - 1e-6 (their offset; docs/encodings.md), phi' = atan2(d_y, d_x),
    grid x = -phi'/pi, y = 2 theta'/pi - 1, clamped to
    +-(1 - 1e-7); bilinear `grid_sample`, align_corners=True, zero padding (no seam wrap, identity off by up
    to half a pixel);
@@ -41,8 +41,9 @@ from gaffer_envmap.errors import ShapeError
 _A = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]], dtype=torch.float64)
 _CLAMP = 1.0 - 1e-7
 THETA_OFFSET = 1e-6
-"""The authors subtract this from arccos(d_z) before the lookup (issue 15, reading 2): it moves the
-sampling row by about 3e-7 px, enough to flip ~0.2-0.8% of a textured map's LDR values by one LSB."""
+"""The authors subtract this from arccos(d_z) before the lookup (their inference script): it moves
+the sampling row by about 3e-7 px, enough to flip ~0.2-0.8% of a textured map's LDR values by one
+LSB."""
 
 
 @lru_cache(maxsize=8)
@@ -101,7 +102,7 @@ def rotate_neural_gaffer(radiance: Tensor, rotations: Tensor, spin: Tensor | Non
 def encode_neural_gaffer(rotated: Tensor, size: int = 256) -> tuple[np.ndarray, np.ndarray]:
     """Steps 4-5: uint8 `[B, size, size, 3]` LDR and HDR maps from rotated `[B, He, We, 3]` radiance."""
     # contiguous first: `rotate_neural_gaffer` returns a channels-last view of grid_sample's output,
-    # and every elementwise pass below ran twice as slow on its strides (issue 18: 7.3 -> 3.6 ms per
+    # and every elementwise pass below ran twice as slow on its strides (7.3 -> 3.6 ms per
     # 512x256 map); elementwise ops and a max give the same values in any layout
     e = rotated.to(torch.float32).contiguous()
     ldr = torch.clip(e, 0, 1) ** (1 / 2.2)

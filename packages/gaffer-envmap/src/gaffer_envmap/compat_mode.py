@@ -5,7 +5,7 @@
   checkpoint (paper section 3.2; the official implementation's turntable and encodings).
 
 gaffer-diffusion and gaffer-nerf take `Compat`, `COMPAT_MODES` (argparse `choices`) and `compat_problem`
-(the wording of the refusal) from here instead of spelling the modes out again (issue 14).
+(the wording of the refusal) from here instead of spelling the modes out again.
 """
 
 from typing import TYPE_CHECKING, Literal, TypeAlias, TypeGuard, get_args

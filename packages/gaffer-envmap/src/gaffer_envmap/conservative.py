@@ -66,7 +66,7 @@ GROUP_SPAN = 1.5
 """A pole group spans at least this many sample gaps. Wider groups even out how often each cell is read,
 so the gain Omega_g / C_g ripples less on flat maps, but they move a sun towards its group's centre; where
 the source is as dense as the samples (64 x 128 from 128 x 256 at supersample 2) a span above sqrt(2)
-merges equatorial texels in pairs too. Measured at supersample 2 (issue 18; flat-map ripple max / rms over
+merges equatorial texels in pairs too. Measured at supersample 2 (flat-map ripple max / rms over
 3 random poses, sun error over 6 random 1.5-degree suns, power exact to 5e-8 in every case):
 span 1: 256 x 256 from 512 x 256 8.9% / 0.62%, 64 x 128 from 128 x 256 13% / 1.9%, sun 0.61 degrees;
 span 1.5: 6.3% / 0.58%, 6.6% / 1.1%, 0.64 degrees; span 2: 5.9% / 0.51%, 6.1% / 1.0%, 0.64 degrees.

@@ -1,7 +1,7 @@
 """Transforms between lat-long conventions that take an `EnvironmentMap`.
 
 They live apart from `conventions` (the uv <-> direction maths, a leaf module) so that
-`environment_map` can import `conventions` at the top without a cycle (issue 14).
+`environment_map` can import `conventions` at the top without an import cycle.
 """
 
 import numpy as np

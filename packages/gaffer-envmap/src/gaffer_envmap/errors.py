@@ -66,7 +66,7 @@ class MissingDependencyError(GafferEnvmapError, ImportError):
 class OutputPathError(GafferEnvmapError, ValueError):
     """A command's output path cannot be written as asked: a file where a folder is expected (or the
     reverse, also for a file or folder the command writes inside its output folder), an unwritable
-    place, or a format whose writer is not installed. Raised before any work (issue 36)."""
+    place, or a format whose writer is not installed. Raised before any work."""
 
 
 class ParameterError(GafferEnvmapError, ValueError):

@@ -13,7 +13,7 @@ Unlike the authors' pipeline (reference section 4; reproduced in `compat.py`), t
 - conserves power by default: "conservative" (`conservative.py`) reads bilinear sub-samples of the
   source, each texel scaled by its own gain Omega_i / C_i so that the total read of every texel equals
   its solid angle: power is exact per channel and per map, to float round-off, with no global gain
-  (issue 18; the price is a local ripple of the gain on flat maps, about 0.5% rms, 6% at worst);
+  (the price is a local ripple of the gain on flat maps, about 0.5% rms, 6% at worst);
 - "area" averages s x s stratified bilinear sub-samples per output pixel, weighted by their solid angle,
   after a conservative (power-exact) pre-downsample of the source to about s samples per output pixel
   (measured median power error 1.5% for 0.5-2 degree suns at s = 2, up to 6.4% for a sun the sub-samples
@@ -256,7 +256,7 @@ def rotate_to_camera(
         filter: "conservative" (default; power-exact per channel and per map, see `conservative`;
             its per-cell gain ripples on flat maps by about 0.5% rms, 6% at worst, at supersample 2),
             "area" (solid-angle-weighted box of bilinear sub-samples; power off by up to a few percent
-            for sub-pixel suns; the default before issue 18) or "bilinear" (one tap per pixel).
+            for sub-pixel suns; the default before "conservative") or "bilinear" (one tap per pixel).
         supersample: s for s x s sub-samples per output pixel (conservative: s rows and as many columns as
             keep them square; area: s x s; >= 1).
         renormalize: rescale each map so output power equals source power exactly (area filter; off by

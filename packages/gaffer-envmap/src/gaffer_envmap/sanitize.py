@@ -100,7 +100,7 @@ def sanitize_flag_refusal(error: Exception, policy: str) -> str:
 TINY_NEGATIVE_RELATIVE = 0.05
 """Largest |negative| that counts as compression noise, relative to the map's mean |radiance|. The
 bundled maps' worst is 0.0145 (night: -0.0017 against a mean of 0.116); a real sign error or a
-subtracted map is of the order of the mean itself (issue 17)."""
+subtracted map is of the order of the mean itself."""
 
 TINY_NEGATIVE_FRACTION = 0.01
 """At most this fraction of the values may be tiny negatives (the bundled maps: <= 0.06 %)."""

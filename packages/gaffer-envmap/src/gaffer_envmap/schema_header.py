@@ -3,7 +3,7 @@
 gaffer-data's manifests, gaffer-diffusion's model folders and training checkpoints all carry
 `{"schema": NAME, "schema_version": "MAJOR.MINOR", ...}`. `schema_header_problem` says what is wrong
 with such a header, the same way for all of them; each reader raises its own error with its own
-advice (issue 14: one schema-header helper instead of three hand-written checks).
+advice (one schema-header helper instead of three hand-written checks).
 """
 
 from typing import Literal

@@ -1,4 +1,4 @@
-"""Pluggable lighting sources: text-to-HDR and light-estimation models as Python entry points (issue 32).
+"""Pluggable lighting sources: text-to-HDR and light-estimation models as Python entry points.
 
 A *source* turns words or a photo into an HDR environment map. gaffer finds sources through the
 entry-point group `gaffer.envmap_sources` (`ENTRY_POINT_GROUP`): any installed distribution may

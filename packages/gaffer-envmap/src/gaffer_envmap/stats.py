@@ -63,7 +63,7 @@ def describe(env: EnvironmentMap, raw: np.ndarray | None = None) -> EnvmapInfo:
         width=env.width,
         convention=env.convention,
         up_axis=tuple(float(x) for x in get_convention(env.convention).up),  # type: ignore[arg-type]
-        # the range of the finite values as stored (issue 17: `info` said 0.0 for a map whose
+        # the range of the finite values as stored (`info` used to say 0.0 for a map whose
         # negatives had been zeroed on read)
         min_value=float(raw_finite.min()) if raw_finite.size else 0.0,
         max_value=float(raw_finite.max()) if raw_finite.size else 0.0,

@@ -70,8 +70,8 @@ def reference_neural_gaffer(
     numpy for the directions, a hand-written align_corners=True zero-padded bilinear lookup, PIL resize.
     `frame` of `num_frames` is their turntable: the row-vector directions are multiplied on the right by
     Rz(-2 pi frame / num_frames) after the camera rotation. `theta_offset` is subtracted from
-    arccos(d_z) as they do (issue 15); 0 gives the reading without it (for tests that must tell them
-    apart). Returns uint8 `[size, size, 3]` LDR and HDR.
+    arccos(d_z) as they do (docs/encodings.md); 0 gives the reading without it (for tests that must tell
+    them apart). Returns uint8 `[size, size, 3]` LDR and HDR.
     """
     he, we, _ = radiance.shape
     theta = np.pi / 2 - (np.arange(he) + 0.5) * np.pi / he

@@ -1,7 +1,7 @@
 """The `cameras.npz` payload: `CameraPoses` and its reader.
 
 A leaf of `gaffer_data.dataset` (numpy and the error types only), so that `schema` (whose
-`RenderedObject.poses()` reads it) and `reader` both import it at the top without a cycle (issue 14).
+`RenderedObject.poses()` reads it) and `reader` both import it at the top without an import cycle.
 """
 
 import zipfile

@@ -19,7 +19,8 @@ from gaffer_data.dataset.manifest import (
     sha256_file,
 )
 
-# `load_poses` lived here before issue 14; re-exported so that old imports keep working.
+# `load_poses` lived here before `dataset.poses` (import cycle removed); re-exported so that old
+# imports keep working.
 from gaffer_data.dataset.poses import load_poses as load_poses
 from gaffer_data.dataset.schema import (
     DATASET_SCHEMA,

@@ -39,7 +39,7 @@ OBJECT_SCHEMA_VERSION = "1.2"
 """MAJOR.MINOR version this package writes and reads (see `gaffer_data.dataset.manifest`).
 
 1.1 added `ViewRecord.split`, `RenderConfig.multiview` and the `transforms` payloads (multi-view sets).
-1.2 added `RenderConfig.envmap_sanitize` (issue 17; a 1.1 manifest reads as the default "raise",
+1.2 added `RenderConfig.envmap_sanitize` (`--sanitize`; a 1.1 manifest reads as the default "raise",
 though its maps were rendered as Blender loaded them, unsanitized).
 """
 DATASET_SCHEMA = "gaffer.render_dataset"

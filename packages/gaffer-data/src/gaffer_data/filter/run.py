@@ -53,7 +53,7 @@ class FilterSummary:
 
 
 def _need_mesh_libraries() -> None:
-    """Refuse the run when the `filter` extra's mesh libraries are missing (issue 17).
+    """Refuse the run when the `filter` extra's mesh libraries are missing.
 
     `extract_features` turns any loader error into a per-object rejection reason, which is right for
     a hostile file but not for a missing library: every object would be rejected and the run would

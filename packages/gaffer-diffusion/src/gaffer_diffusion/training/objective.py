@@ -131,7 +131,7 @@ class TrainingObjective:
                 geometry = m.config.hint_geometry
                 images = normals = None
                 if geometry == "estimated":
-                    # the estimator once per input, not once per target (issue 31)
+                    # the estimator once per input, not once per target (the targets share their input)
                     normals = input_normals(geometry, inputs, alphas).repeat_interleave(t, dim=0)
                     images = inputs.repeat_interleave(t, dim=0)
                 parts.append(

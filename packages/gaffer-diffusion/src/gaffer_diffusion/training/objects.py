@@ -22,7 +22,7 @@ def split_object_ids(
     Raises:
         ConfigError: when `num_val` (`data.val_objects`) is not below the number of objects: holding
             them all out would leave nothing to train on (it used to be cut silently to
-            `len(object_ids) - 1`, so `val_objects: 50` on 12 objects trained on 1, issue 17).
+            `len(object_ids) - 1`, so `val_objects: 50` on 12 objects trained on 1).
     """
     if num_val > 0 and num_val >= len(object_ids):
         n = len(object_ids)
