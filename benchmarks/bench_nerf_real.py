@@ -26,7 +26,7 @@ encoding) under
 - `full-per-view` (the consistency ablation): `full` with every training view relit from its own
   initial noise (`DiffusionSamplingConfig(shared_noise=False)`, the paper's way) instead of the one
   noise all views share (the tiny preset's, chosen on the validation split:
-  `bench_nerf_noise_val.py`);
+  `nerf_sweep.py run noise`);
 - `stage1-oracle` (reference, not a method): Stage 1 fitted to the Cycles renders of the TRAINING
   views under the target lighting instead of gaffer-tiny's relit views: what Stage 1 could reach with
   a perfect 2D relighting at this field and budget.
@@ -34,9 +34,9 @@ encoding) under
 Stage 1 `STAGE1_ITERATIONS` x 1024 rays, Stage 2 `STAGE2_ITERATIONS` full views (both from
 `relight_preset("tiny")`, counts raised). The tiny preset's other choices were made on a VALIDATION
 split disjoint from this one in objects and target lightings, one after the other: Stage 2's
-learning rates (`bench_nerf_stage2_val.py`), Stage 1's targets (the model's change of shading
-transferred onto the input views, radius 2 px: `bench_nerf_stage1_val.py`) and one initial noise
-shared by every view (`bench_nerf_noise_val.py`); this test split is scored with them. The relit
+learning rates (`nerf_sweep.py run stage2`), Stage 1's targets (the model's change of shading
+transferred onto the input views, radius 2 px: `run stage1`) and one initial noise shared by every
+view (`run noise`); this test split is scored with them. The relit
 training views (Stage 1's targets) are computed once per pair and reused by `full` and `sds-stage2`
 (they are deterministic: seeded noise); their seconds are counted in every variant that uses them.
 
@@ -141,7 +141,7 @@ COLOURS = {
 @dataclasses.dataclass(frozen=True)
 class Split:
     """Which objects and target lightings a run uses: the test split (this benchmark) or the
-    validation split Stage 2's settings are chosen on (`bench_nerf_stage2_val.py`).
+    validation split Stage 2's settings are chosen on (`nerf_sweep.py`).
 
     Objects and target HDRIs are disjoint between the two; the input lighting is the same.
     """
@@ -626,16 +626,16 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             "sds_variants_learning_rates": SDS_LR,
             "stage2_settings_from": (
                 "relight_preset('tiny'), chosen on the validation split "
-                "(bench_nerf_stage2_val.py, results/nerf_stage2_val.json)"
+                "(nerf_sweep.py run stage2, results/nerf_stage2_val.json)"
             ),
             "stage1_targets": {
                 "target_detail": rcfg.stage1.target_detail,
                 "transfer_radius_px": rcfg.stage1.transfer_radius_px,
                 "from": "relight_preset('tiny'), chosen on the validation split "
-                "(bench_nerf_stage1_val.py, results/nerf_stage1_val.json)",
+                "(nerf_sweep.py run stage1, results/nerf_stage1_val.json)",
             },
             "shared_noise_from": "relight_preset('tiny'), chosen on the validation split "
-            "(bench_nerf_noise_val.py, results/nerf_noise_val.json)",
+            "(nerf_sweep.py run noise, results/nerf_noise_val.json)",
             "sds_guidance_scale": guide.sds_guidance(rcfg.stage2),
             "perceptual_metric": None if metric is None else metric.name,
             "stage2_perceptual_loss": perceptual_loss.name,

@@ -20,7 +20,7 @@ Run: `python benchmarks/bench_nerf_sizing.py [--quick] [--update-baseline] [--th
 
 `--real test|validation`: the same comparison on the gaffer-data Cycles renders of
 `bench_nerf_real.py` (3 unseen procedural objects per split, 64 px, input lighting city; rendered
-once by that benchmark or `bench_nerf_stage2_val.py` and reused here). Per object, the 20 train views
+once by that benchmark or `nerf_sweep.py` and reused here). Per object, the 20 train views
 are split into 17 fitted views and 3 early-stopping views (train indices 3, 10, 17); fit quality is
 the object-mask PSNR on the object's 5 held-out test views under the input lighting. Same fixed sides,
 same 300-iteration budget and early stopping; the footprint-alone fit is skipped. Results go to
