@@ -1,4 +1,4 @@
-"""`gaffer_diffusion.images`: one 8-bit quantisation, and PNG/GIF writers that are atomic.
+"""`gaffer_diffusion.images`: one 8-bit grid; PNG/GIF writing (`gaffer_envmap.writers`) is atomic.
 
 A failure mid-write (the encoder raising after it wrote part of the file) must leave nothing under the
 final name, an earlier file there untouched, and no temporary file beside it; the evaluation's saved
@@ -14,6 +14,7 @@ from PIL import Image
 
 from gaffer_diffusion import images
 from gaffer_diffusion.evaluation import quantize_8bit as evaluation_quantize_8bit
+from gaffer_envmap import writers
 
 
 def _failing_save(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -44,9 +45,9 @@ def test_quantize_and_to_uint8_are_the_grid_the_old_copies_used() -> None:
 
 def test_write_png_and_gif_round_trip(tmp_path: Path) -> None:
     arr = np.random.default_rng(0).integers(0, 256, (6, 5, 3), dtype=np.uint8)
-    assert images.write_png(tmp_path / "a.png", arr) == tmp_path / "a.png"
+    assert writers.write_png(tmp_path / "a.png", arr) == tmp_path / "a.png"
     np.testing.assert_array_equal(np.asarray(Image.open(tmp_path / "a.png")), arr)
-    gif = images.write_gif(tmp_path / "a.gif", [arr, 255 - arr], 40)
+    gif = writers.write_gif(tmp_path / "a.gif", [arr, 255 - arr], fps=25)
     with Image.open(gif) as im:
         assert (
             getattr(im, "n_frames", 1) == 2 and im.info["duration"] == 40 and im.info["loop"] == 0
@@ -65,9 +66,9 @@ def test_a_failure_mid_write_leaves_no_file_under_the_final_name(
     for path in (tmp_path / f"new.{kind}", old):
         with pytest.raises(OSError, match="No space left"):
             if kind == "png":
-                images.write_png(path, arr)
+                writers.write_png(path, arr)
             else:
-                images.write_gif(path, [arr, arr], 40)
+                writers.write_gif(path, [arr, arr], fps=25)
     assert sorted(p.name for p in tmp_path.iterdir()) == [old.name]
     assert old.read_bytes() == b"an earlier run's file"
 

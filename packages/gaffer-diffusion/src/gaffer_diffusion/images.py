@@ -1,16 +1,14 @@
-"""The one image module: renders read on white, the 8-bit grid, and PNG/GIF files written atomically.
+"""Reading renders on white, and the typed 8-bit grid of `gaffer_envmap.writers` for `[C, H, W]` tensors.
 
 - Reading: `load_rgba_on_white` is the one reader of rendered views for training, evaluation and the
   demo (one resize: bilinear, antialiased, colour and alpha together), with `crop_square` and
   `read_alpha` for the object-centred framing. `gaffer_diffusion.preprocess` re-exports all three.
-- Quantising: `quantize_8bit` rounds float images to the 8-bit grid (as a PNG round trip would);
-  `to_uint8` is the same rounding as a `[H, W, C]` uint8 array, ready to write.
-- Writing: `write_png` and `write_gif` write to a temporary sibling and rename it into place
-  (`gaffer_envmap.atomic.atomic_path`), so a failure mid-write leaves nothing under the final name
-  and an earlier file there untouched; the error is an `EnvmapWriteError` (an `OSError`).
+- Quantising: `quantize_8bit` snaps float images to the 8-bit grid (as a PNG round trip would) and
+  `to_uint8` turns a `[C, H, W]` tensor into the `[H, W, C]` uint8 array a PNG holds; both are
+  `gaffer_envmap.writers`' one rounding rule (nearest level, ties to even), which also writes every
+  PNG, GIF and MP4 (atomically).
 """
 
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +18,7 @@ from jaxtyping import Float
 from PIL import Image
 from torch import Tensor
 
-from gaffer_envmap.atomic import atomic_path
+from gaffer_envmap.writers import quantize, quantize_float
 
 
 def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
@@ -32,7 +30,7 @@ def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:
         >>> round(float(x[0, 0, 0, 0]) * 255, 3)
         77.0
     """
-    return (images.clamp(0.0, 1.0) * 255.0).round() / 255.0
+    return quantize_float(images)
 
 
 def to_uint8(image: Float[Tensor, "C H W"]) -> np.ndarray:
@@ -43,46 +41,7 @@ def to_uint8(image: Float[Tensor, "C H W"]) -> np.ndarray:
         >>> to_uint8(torch.tensor([[[0.301, 1.5]]])).tolist()
         [[[77], [255]]]
     """
-    arr = (image.detach().clamp(0.0, 1.0) * 255.0).round().permute(1, 2, 0).cpu().numpy()
-    return arr.astype(np.uint8)
-
-
-def write_png(path: Path, image: np.ndarray) -> Path:
-    """Write a `[H, W]` or `[H, W, 1|2|3|4]` uint8 array as a PNG, atomically; returns `path`.
-
-    Raises:
-        EnvmapWriteError: the write failed (an `OSError`); nothing new is left under `path`.
-    """
-    arr = np.asarray(image)
-    if arr.dtype != np.uint8:
-        raise TypeError(f"`image` has dtype {arr.dtype}; expected uint8 (see `to_uint8`).")
-    if arr.ndim == 3 and arr.shape[2] == 1:
-        arr = arr[..., 0]
-    with atomic_path(path) as tmp:
-        Image.fromarray(np.ascontiguousarray(arr)).save(tmp, format="PNG")
-    return Path(path)
-
-
-def write_gif(path: Path, frames: Sequence[np.ndarray], duration_ms: int) -> Path:
-    """An endlessly looping GIF of `[H, W, 3]` uint8 frames, `duration_ms` each, written atomically.
-
-    Raises:
-        ValueError: on no frames.
-        EnvmapWriteError: the write failed (an `OSError`); nothing new is left under `path`.
-    """
-    if not frames:
-        raise ValueError("`frames` is empty; nothing to write.")
-    images = [Image.fromarray(np.asarray(f, np.uint8)) for f in frames]
-    with atomic_path(path) as tmp:
-        images[0].save(
-            tmp,
-            format="GIF",
-            save_all=True,
-            append_images=images[1:],
-            duration=duration_ms,
-            loop=0,
-        )
-    return Path(path)
+    return quantize(image.permute(1, 2, 0))
 
 
 def crop_square(arr: np.ndarray, box: tuple[int, int, int], fill: float) -> np.ndarray:

@@ -27,6 +27,7 @@ from gaffer_envmap.poses import IDENTITY_LAYOUT_W2C, W2CBlender
 from gaffer_envmap.resample import resize_conservative
 from gaffer_envmap.sky import sun_direction
 from gaffer_envmap.studio import add_disc_light
+from gaffer_envmap.writers import quantize
 
 __all__ = [
     "LEVEL_CAMERA",
@@ -910,7 +911,7 @@ def composite(
     t, l, b, r = placed.box
     a = placed.alpha[..., None]
     base[t:b, l:r] = a * placed.rgb + (1.0 - a) * base[t:b, l:r]
-    out = np.round(np.clip(base, 0.0, 1.0) * 255.0).astype(np.uint8)
+    out = quantize(base)
     keep = ~touched & (placed.full_alpha(h, w) <= 0.0)
     out[keep] = background.rgb_u8[keep]  # away from the object and its shadow: the bytes as read
     return out

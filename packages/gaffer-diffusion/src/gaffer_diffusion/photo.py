@@ -41,6 +41,7 @@ from gaffer_diffusion.preprocess import (
     prepare_object_image,
     prepare_object_image_neural_gaffer,
 )
+from gaffer_envmap.writers import quantize
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -123,7 +124,7 @@ def read_photo(path: str | Path) -> Photo:
         peak = 65535.0 if im.mode != "I" or grey.max() > 255 else 255.0
         g = np.clip(grey / peak, 0.0, 1.0).astype(np.float32)
         rgb = np.repeat(g[..., None], 3, axis=2)
-        rgb_u8 = np.round(rgb * 255).astype(np.uint8)
+        rgb_u8 = quantize(rgb)
     else:
         has_alpha = im.mode in ("RGBA", "LA", "PA", "RGBa", "La") or "transparency" in im.info
         rgba = np.asarray(im.convert("RGBA"))
@@ -239,7 +240,7 @@ def prepare_photo(
                 size=size,
             )
         case "neural-gaffer":
-            a_u8 = np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8)
+            a_u8 = quantize(alpha)
             prepared = prepare_object_image_neural_gaffer(photo.rgb_u8, a_u8, size=size)
             top, left, bottom, right = prepared.bbox  # in the 512 px thumbnail's pixels
             th_img = Image.new("L", photo.size_wh)
@@ -370,7 +371,7 @@ def paste_back(
     a = obj.alpha[..., None]
     out_f = base.copy()
     out_f[t:b, l:r] = a * obj.rgb + (1.0 - a) * base[t:b, l:r]
-    out = np.round(np.clip(out_f, 0, 1) * 255).astype(np.uint8)
+    out = quantize(out_f)
     if backdrop is None:
         keep = alpha <= 0.0  # outside the mask: the input's bytes, exactly
         out[keep] = photo.rgb_u8[keep]
@@ -381,7 +382,7 @@ def paste_back(
 
 def model_crop(relit: Float[Tensor, "3 S S"]) -> np.ndarray:
     """`[S, S, 3]` uint8 of a model-resolution result (`--output-size model`)."""
-    return (relit.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+    return quantize(relit.permute(1, 2, 0))
 
 
 def envmap_backdrop(

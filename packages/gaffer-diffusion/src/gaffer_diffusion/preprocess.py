@@ -28,6 +28,7 @@ from gaffer_diffusion.errors import InputValueError
 from gaffer_diffusion.images import crop_square as crop_square
 from gaffer_diffusion.images import load_rgba_on_white as load_rgba_on_white
 from gaffer_diffusion.images import read_alpha as read_alpha
+from gaffer_envmap.writers import quantize
 
 ALPHA_THRESHOLD = 0.5
 """Alpha above this counts as object when computing the bounding box."""
@@ -102,12 +103,8 @@ def prepare_object_image(
     # composite on white with straight alpha
     canvas_rgb[oy : oy + h, ox : ox + w] = crop_rgb * crop_a[..., None] + (1.0 - crop_a[..., None])
     canvas_a[oy : oy + h, ox : ox + w] = crop_a
-    img = Image.fromarray(np.round(canvas_rgb * 255).astype(np.uint8)).resize(
-        (size, size), Image.Resampling.BICUBIC
-    )
-    msk = Image.fromarray(np.round(canvas_a * 255).astype(np.uint8)).resize(
-        (size, size), Image.Resampling.BICUBIC
-    )
+    img = Image.fromarray(quantize(canvas_rgb)).resize((size, size), Image.Resampling.BICUBIC)
+    msk = Image.fromarray(quantize(canvas_a)).resize((size, size), Image.Resampling.BICUBIC)
     image = torch.from_numpy(np.asarray(img, np.float32) / 255.0).permute(2, 0, 1)[None]
     mask = torch.from_numpy(np.asarray(msk, np.float32) / 255.0)[None, None]
     return PreparedImage(image=image.contiguous(), mask=mask, bbox=(top, left, bottom, right))

@@ -18,9 +18,9 @@ from typing import Any, TypeVar
 
 import gradio as gr
 import numpy as np
-from PIL import Image
 
 from gaffer_diffusion.errors import GafferDiffusionError
+from gaffer_envmap.writers import write_png
 
 logger = logging.getLogger(__name__)
 
@@ -98,8 +98,8 @@ def digest(path: str | Path) -> str:
 
 
 def save_png(path: Path, arr: np.ndarray) -> str:
-    Image.fromarray(arr).save(path)
-    return str(path)
+    """A uint8 image as a PNG for the page, written atomically (`gaffer_envmap.writers`)."""
+    return str(write_png(path, arr))
 
 
 def envmap_path(bundled: str | None, upload: str | None) -> str:

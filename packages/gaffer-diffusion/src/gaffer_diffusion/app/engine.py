@@ -16,11 +16,8 @@ before sampling) and `insert.insert_object` (relight, place, pixel-height shadow
 clicks become its flags in `app.inserting`.
 """
 
-import functools
 import logging
 import math
-import os
-import tempfile
 import threading
 from collections import OrderedDict
 from collections.abc import Sequence
@@ -56,6 +53,10 @@ from gaffer_diffusion.photo import (
     usable_alpha,
 )
 from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, relight_in_batches
+from gaffer_envmap import writers
+from gaffer_envmap.errors import MissingDependencyError as EnvmapMissingDependencyError
+from gaffer_envmap.writers import Mp4Encoder
+from gaffer_envmap.writers import is_mp4 as is_mp4  # the app's tests and callers ask engine
 
 logger = logging.getLogger(__name__)
 
@@ -364,7 +365,7 @@ class Engine:
                 'installed (pip install "gaffer-diffusion[photo]"): upload a mask (white = object).'
             ) from exc
         check_mask(alpha, "The automatic (GrabCut) mask")
-        return np.round(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+        return writers.quantize(alpha)
 
     def has_alpha(self, image_path: str | Path) -> bool:
         """Whether an uploaded image carries an alpha that marks the object: transparency in its
@@ -420,7 +421,7 @@ class Engine:
             compat=m.compat,
             object_fraction=0.75 if fraction is None else fraction,
         )
-        mask_u8 = np.round(np.clip(alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+        mask_u8 = writers.quantize(alpha)
         return PhotoInput(prepared=prepared, mask=mask_u8, auto_mask=auto, shrunk_from=shrunk_from)
 
     def _check_image(self, path: str | Path, what: str) -> None:
@@ -633,28 +634,13 @@ def _shrink(photo: Photo, alpha: np.ndarray, max_side: int) -> tuple[Photo, np.n
     return shrunk, alpha_s.astype(np.float32)
 
 
-def on_white(frame: np.ndarray) -> np.ndarray:
-    """`[H, W, 3]` uint8: an RGBA result composited over white (as the model's input is), else itself."""
-    if frame.ndim == 3 and frame.shape[-1] == 4:
-        a = frame[..., 3:4].astype(np.float32) / 255.0
-        rgb = frame[..., :3].astype(np.float32) * a + 255.0 * (1.0 - a)
-        return np.round(rgb).astype(np.uint8)
-    return frame
-
-
-def _partial(path: Path) -> Path:
-    """A sibling of `path` to write first and rename over it (same folder, same suffix)."""
-    return path.with_name(f".{path.stem}-partial{path.suffix}")
-
-
 def write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
-    """An endlessly looping GIF of `[H, W, 3]` uint8 frames (PIL, no ffmpeg needed), written atomically."""
+    """An endlessly looping GIF of `[H, W, 3|4]` uint8 frames (RGBA over white, as the model's input
+    is; Pillow, no ffmpeg needed), written atomically (`gaffer_envmap.writers.write_gif`)."""
     if not frames:
         raise InputValueError("No frames to write: ask for a turntable of 2 or more frames.")
-    return image_io.write_gif(path, [on_white(f) for f in frames], max(round(1000.0 / fps), 20))
+    return writers.write_gif(path, frames, fps=fps)
 
-
-Mp4Backend = Literal["ffmpeg", "pyav", "opencv"]
 
 MP4_UNAVAILABLE = (
     "MP4 needs an encoder and none is installed (an ffmpeg binary on PATH, PyAV: pip install av, or "
@@ -663,59 +649,15 @@ MP4_UNAVAILABLE = (
 """Why the page has no MP4 download, when it has none."""
 
 
-def is_mp4(path: str | Path) -> bool:
-    """Whether a file starts with an ISO base media `ftyp` box (what every MP4 player looks for)."""
-    with open(path, "rb") as f:
-        head = f.read(12)
-    return len(head) == 12 and head[4:8] == b"ftyp"
-
-
-def _opencv_mp4(frames: Sequence[np.ndarray], path: Path, fps: float) -> bool:
-    """MPEG-4 Part 2 (`mp4v`) through OpenCV's bundled ffmpeg; False when it cannot open a writer."""
-    import cv2
-
-    h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), float(fps), (w, h))
-    if not writer.isOpened():
-        return False
-    try:
-        for f in frames:
-            writer.write(np.ascontiguousarray(f[..., ::-1]))
-    finally:
-        writer.release()
-    return path.is_file() and is_mp4(path)
-
-
-@functools.cache
-def mp4_backend() -> Mp4Backend | None:
-    """The MP4 encoder this machine has offline: ffmpeg or PyAV (H.264, `_video.mp4_encoder`), else
-    OpenCV's `mp4v` writer when it can write a probe file, else None (the page hides its MP4 button)."""
-    from gaffer_diffusion._video import mp4_encoder
-
-    found = mp4_encoder()
-    if found is not None:
-        return found
-    try:
-        import cv2  # noqa: F401
-    except ImportError:
-        return None
-    with tempfile.TemporaryDirectory(prefix="gaffer-mp4-probe-") as tmp:
-        probe = [np.zeros((16, 16, 3), np.uint8), np.full((16, 16, 3), 255, np.uint8)]
-        try:
-            ok = _opencv_mp4(probe, Path(tmp) / "probe.mp4", 2.0)
-        except Exception:  # a broken OpenCV build: no MP4, the GIF stays
-            logger.info("OpenCV cannot write MP4 here", exc_info=True)
-            return None
-    return "opencv" if ok else None
-
-
-def _even(frame: np.ndarray) -> np.ndarray:
-    h, w = frame.shape[:2]  # yuv420p needs even sides: repeat the last row / column
-    return np.pad(frame, ((0, h % 2), (0, w % 2), (0, 0)), mode="edge")
+def mp4_backend() -> Mp4Encoder | None:
+    """The MP4 encoder this machine has offline (`gaffer_envmap.writers.mp4_encoder`: ffmpeg or PyAV,
+    H.264, else OpenCV's `mp4v` writer when it can write a probe), or None: the page hides its MP4
+    button."""
+    return writers.mp4_encoder()
 
 
 def write_mp4(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
-    """`[H, W, 3|4]` uint8 frames as an MP4 at `path`, written to a sibling and renamed (atomic).
+    """`[H, W, 3|4]` uint8 frames as an MP4 at `path`, written atomically (`gaffer_envmap.writers`).
 
     Raises:
         InputValueError: no frames.
@@ -726,21 +668,7 @@ def write_mp4(path: Path, frames: Sequence[np.ndarray], fps: float) -> Path:
     backend = mp4_backend()
     if backend is None:
         raise MissingDependencyError(MP4_UNAVAILABLE)
-    even = [_even(on_white(np.asarray(f, np.uint8))) for f in frames]
-    tmp = _partial(path)
     try:
-        if backend == "opencv":
-            if not _opencv_mp4(even, tmp, fps):
-                raise MissingDependencyError("OpenCV could not write the MP4; download the GIF.")
-        else:
-            from gaffer_diffusion._video import write_animation
-
-            written = write_animation(even, tmp.with_suffix(""), fmt="mp4", fps=fps)
-            if written != tmp:
-                os.replace(written, tmp)
-        if not is_mp4(tmp):
-            raise MissingDependencyError(f"The {backend} encoder wrote no MP4; download the GIF.")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+        return writers.write_mp4(path, frames, fps=fps, encoder=backend)
+    except EnvmapMissingDependencyError as exc:  # the encoder failed: the page offers the GIF
+        raise MissingDependencyError(f"{exc} Download the GIF.") from exc

@@ -153,22 +153,14 @@ def _device(args: argparse.Namespace, *, check: bool = True) -> str:
 
 
 def _save_png(path: Path, image: torch.Tensor | np.ndarray) -> None:
-    """Write a PNG atomically: the file is complete or absent (`gaffer_envmap.atomic`)."""
+    """Write a `[C, H, W]` tensor or an `[H, W(, C)]` array as a PNG, complete or absent
+    (`gaffer_envmap.writers.write_png`: uint8 as is, floats on its one 8-bit grid)."""
     import numpy as np
-    from PIL import Image
 
-    from gaffer_envmap.atomic import atomic_path
+    from gaffer_envmap.writers import write_png
 
-    arr = image if isinstance(image, np.ndarray) else _to_uint8(image)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        Image.fromarray(arr).save(tmp, format="PNG")
-
-
-def _to_uint8(image: torch.Tensor) -> np.ndarray:
-    import numpy as np
-
-    return (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+    write_png(path, image if isinstance(image, np.ndarray) else image.permute(1, 2, 0))
 
 
 def _progress(total: int, desc: str) -> tqdm[Any]:

@@ -104,9 +104,8 @@ def _photo_and_mask(
     photo without a usable alpha: RGB, or an all-opaque alpha, as the app does). An estimated mask is
     not written here: the caller writes it to `mask_out` with its outputs (`write_with_outputs`).
     """
-    import numpy as np
-
     from gaffer_diffusion.photo import object_alpha, read_mask, read_photo, usable_alpha
+    from gaffer_envmap.writers import quantize
 
     photo = read_photo(image)
     sam = getattr(args, "sam_checkpoint", None)
@@ -157,7 +156,7 @@ def _photo_and_mask(
         photo=photo,
         alpha=alpha,
         note=note,
-        estimated=np.round(np.clip(alpha, 0, 1) * 255).astype(np.uint8),
+        estimated=quantize(alpha),
         mask_out=mask_out,
     )
 
@@ -200,6 +199,7 @@ def _finish(
     import numpy as np
 
     from gaffer_diffusion.photo import model_crop, paste_back
+    from gaffer_envmap.writers import quantize
 
     k, n = frame
     match args.output_size:
@@ -213,7 +213,7 @@ def _finish(
                 return model_crop(relit)
             m = prepared.model_input.mask[0, 0].numpy()[..., None]
             rgb = relit.clamp(0, 1).permute(1, 2, 0).numpy()
-            return np.round((m * rgb + (1 - m) * bd) * 255).astype(np.uint8)
+            return quantize(m * rgb + (1 - m) * bd)
         case "input":
             h, w = prepared.alpha.shape
             bd = _backdrop(args, envmap, h, w, args.fov, k, n)

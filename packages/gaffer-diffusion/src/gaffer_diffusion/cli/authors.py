@@ -36,17 +36,15 @@ def _model_mask_out(out: Path) -> Path:
 def _prepare(args: argparse.Namespace) -> int:
     _validate_prepare(args)
     _check_photo_flags(args)
-    import numpy as np
 
     from gaffer_diffusion.photo import prepare_photo
 
     read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
     prepared = prepare_photo(read.photo, read.alpha, size=args.size, compat=args.compat).model_input
     mask_out = _model_mask_out(args.out)
-    arr = (prepared.mask[0, 0].clamp(0, 1).numpy() * 255.0).round().astype(np.uint8)
     with write_with_outputs(args.out.parent, [read]) as stage:  # all of them or none
         _save_png(stage / args.out.name, prepared.image[0])
-        _save_png(stage / mask_out.name, arr)
+        _save_png(stage / mask_out.name, prepared.mask[0])
     extra = f"; {read.note}" if read.note else ""
     print(f"wrote {args.out} and {mask_out} ({args.size}x{args.size}, compat={args.compat}){extra}")
     return 0

@@ -37,7 +37,6 @@ def _normals(args: argparse.Namespace) -> int:
     the camera; white outside the mask) at the model's framing, or pasted back at the photo's size."""
     _validate_normals(args)
     _check_photo_flags(args)
-    import numpy as np
     import torch
     import torch.nn.functional as F
 
@@ -73,9 +72,8 @@ def _normals(args: argparse.Namespace) -> int:
     else:
         m = inp.mask[0] > 0.5
         enc = torch.where(m, (normals[0] + 1) / 2, torch.ones_like(normals[0]))
-    arr = (enc.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0).round().astype(np.uint8)
     with write_with_outputs(args.out.parent, [read]) as stage:  # the normals and their mask
-        _save_png(stage / args.out.name, arr)
+        _save_png(stage / args.out.name, enc)
     extra = f"; {note}" if note else ""
     print(f"wrote {args.out} (camera-frame normals, RGB = (n + 1) / 2){extra}")
     return 0

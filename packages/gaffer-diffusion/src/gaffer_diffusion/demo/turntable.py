@@ -1,13 +1,10 @@
 """The turntable: which bundled HDRI it spins, and its GIF (frames side by side, upscaled)."""
 
-from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from gaffer_diffusion.errors import ConfigError
-from gaffer_diffusion.images import write_gif
 
 GIF_SCALE = 4
 """Nearest-neighbour upscale of the model-size turntable frames in the GIF, so that it is watchable."""
@@ -28,10 +25,6 @@ def _turntable_hdri(name: str | None) -> tuple[str, Any]:
     maps = {n: read_bundled_hdri(n) for n in names}
     best = max(names, key=lambda n: directionality(maps[n], about_up=True))
     return best, maps[best]
-
-
-def _write_gif(path: Path, frames: Sequence[np.ndarray], fps: float) -> None:
-    write_gif(path, frames, round(1000 / fps))
 
 
 def _side_by_side(*images: np.ndarray, scale: int = GIF_SCALE) -> np.ndarray:

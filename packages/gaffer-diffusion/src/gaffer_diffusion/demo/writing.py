@@ -1,30 +1,24 @@
-"""Writing the images: every PNG, the overview sheet and the turntable GIF, each atomically."""
+"""Writing the images: every PNG, the overview sheet and the turntable GIF, each atomically
+(`gaffer_envmap.writers`, the one writer and rounding rule of gaffer)."""
 
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
 from torch import Tensor
 
 from gaffer_diffusion.demo.config import DemoConfig
 from gaffer_diffusion.demo.example import _Example
 from gaffer_diffusion.demo.lightings import _Lighting
-from gaffer_diffusion.demo.turntable import _side_by_side, _write_gif
-
-
-def _uint8(image: Tensor) -> np.ndarray:
-    """`[3, H, W]` in [0, 1] -> `[H, W, 3]` uint8."""
-    return (image.clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255.0).round().astype(np.uint8)
+from gaffer_diffusion.demo.turntable import _side_by_side
+from gaffer_diffusion.images import to_uint8 as _uint8
+from gaffer_envmap.writers import write_gif, write_png
 
 
 def _write_png(path: Path, rgb: np.ndarray) -> None:
-    from gaffer_envmap.atomic import atomic_path
-
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        Image.fromarray(rgb).save(tmp, format="PNG")
+    write_png(path, rgb)
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -82,6 +76,6 @@ def _write_images(
     _write_png(out / "overview.png", contact_sheet(sheet, cell=128))
     files["turntable"] = {"gif": None, "frames": frame_pngs}
     if frames:
-        _write_gif(out / "turntable.gif", frames, config.fps)
+        write_gif(out / "turntable.gif", frames, fps=config.fps)
         files["turntable"]["gif"] = "turntable.gif"
     return files

@@ -25,7 +25,7 @@ from gaffer_diffusion.evaluation.records import (
     EvalPair,
     EvaluationConfig,
 )
-from gaffer_diffusion.images import quantize_8bit, to_uint8, write_png
+from gaffer_diffusion.images import quantize_8bit, to_uint8
 from gaffer_diffusion.metrics import (
     MetricsReport,
     PerceptualMetric,
@@ -34,6 +34,7 @@ from gaffer_diffusion.metrics import (
     load_perceptual,
 )
 from gaffer_diffusion.pipelines import RelightPipeline, relight_built_batches
+from gaffer_envmap.writers import write_png
 
 
 class _BatchImages(NamedTuple):

@@ -35,6 +35,7 @@ from gaffer_diffusion.images import crop_square, load_rgba_on_white, read_alpha
 from gaffer_diffusion.preprocess import object_square
 from gaffer_diffusion.training.objects import dataset_object_ids
 from gaffer_envmap.io_exr import read_exr_array
+from gaffer_envmap.writers import quantize
 
 logger = logging.getLogger(__name__)
 
@@ -105,7 +106,7 @@ def load_geometry_views(
             alpha = None
             for png in pngs:
                 rgb, alpha = load_rgba_on_white(png, size, alpha_path, box)
-                rgbs.append((rgb * 255.0).round().to(torch.uint8))
+                rgbs.append(torch.from_numpy(quantize(rgb)))
             w2c = np.asarray(poses.w2c_blender[view.index], dtype=np.float64)
             images.append(torch.stack(rgbs))
             masks.append(alpha)

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PIL import Image
 
 from gaffer_data import RenderConfig
 from gaffer_data.dataset import (
@@ -28,6 +27,7 @@ from gaffer_data.dataset import (
     ViewRecord,
 )
 from gaffer_data.testing import write_fake_dataset_json, write_fake_object
+from gaffer_envmap.writers import quantize, write_png
 
 if TYPE_CHECKING:
     from gaffer_diffusion.training.config import TrainConfig
@@ -65,11 +65,7 @@ def _disc_rgba(size: int, albedo: np.ndarray, light: np.ndarray) -> np.ndarray:
 
 def _save_png(path: Path, rgba: np.ndarray) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(_to_uint8(rgba), "RGBA").save(path)
-
-
-def _to_uint8(rgba: np.ndarray) -> np.ndarray:
-    return (np.clip(rgba, 0, 1) * 255).round().astype(np.uint8)
+    write_png(path, rgba)
 
 
 def write_synthetic_dataset(
@@ -130,7 +126,7 @@ def write_synthetic_dataset(
             for li in range(lightings):
                 k = int(rng.integers(len(pool)))
                 rel = f"lit/{v:03d}_{li:03d}"
-                pngs[f"{rel}.png"] = _to_uint8(_disc_rgba(size, albedo, means[k]))
+                pngs[f"{rel}.png"] = quantize(_disc_rgba(size, albedo, means[k]))
                 ref = EnvmapRef(
                     name=pool[k].stem,
                     source=str(pool[k]),
@@ -144,7 +140,7 @@ def write_synthetic_dataset(
                 )
             area_rec = None
             if area:
-                pngs[f"area/{v:03d}.png"] = _to_uint8(_disc_rgba(size, albedo, np.full(3, 0.7)))
+                pngs[f"area/{v:03d}.png"] = quantize(_disc_rgba(size, albedo, np.full(3, 0.7)))
                 area_rec = AreaLightImage(
                     light=AreaLightSample(
                         location=(0.0, 0.0, 1.0), energy=400.0, scale=100.0, world_grey=0.35
@@ -232,7 +228,7 @@ def write_authors_release(
                 for sub, arr in (("LDR", ldr), ("HDR_rescaled", hdr)):
                     path = folder / sub / name
                     path.parent.mkdir(parents=True, exist_ok=True)
-                    Image.fromarray((arr * 255).round().astype(np.uint8), "RGB").save(path)
+                    write_png(path, arr)
     return root
 
 

@@ -21,7 +21,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import LightingMaps
-from gaffer_diffusion.images import quantize_8bit, to_uint8, write_png
+from gaffer_diffusion.images import quantize_8bit, to_uint8
 from gaffer_diffusion.metrics import psnr
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines import (
@@ -35,6 +35,7 @@ from gaffer_diffusion.training.dataset import RelightTrainDataset
 from gaffer_diffusion.training.ema import EMAModel
 from gaffer_diffusion.training.lighting import batch_lighting
 from gaffer_diffusion.training.tracking import MetricsLogger
+from gaffer_envmap.writers import write_png
 
 logger = logging.getLogger(__name__)
 
