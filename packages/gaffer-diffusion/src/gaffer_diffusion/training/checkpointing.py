@@ -60,6 +60,9 @@ def save_checkpoint(
         tmp.mkdir(parents=True, exist_ok=True)
     acc.wait_for_everyone()
     acc.save_state(str(tmp))
+    # every process has written its files (its RNG state) before the folder is renamed; without
+    # this barrier a slower rank re-created the temporary folder after the publish (issue 36)
+    acc.wait_for_everyone()
     if acc.is_main_process:
         if ema is not None:
             ema.save(str(tmp / ckpt.EMA_NAME))
@@ -72,10 +75,20 @@ def save_checkpoint(
 
 
 def restore_checkpoint(
-    resume_from: Path, acc: Any, unet: Any, ema: EMAModel | None, ema_decay: float
+    resume_from: Path,
+    acc: Any,
+    unet: Any,
+    ema: EMAModel | None,
+    ema_decay: float,
+    *,
+    per_step_samples: int | None = None,
 ) -> tuple[ckpt.TrainState, EMAModel | None]:
     """Load `resume_from` into the prepared UNet and optimiser (and `ema`); returns its `TrainState`
-    and the EMA to use (restarted from the current weights when the checkpoint has none)."""
+    and the EMA to use (restarted from the current weights when the checkpoint has none).
+
+    `per_step_samples` (this run's global batch: batch x grad_accum x processes) is compared with the
+    checkpoint's: the data stream continues where it stopped whatever the process count, but a
+    different global batch groups it into other steps (a warning says so)."""
     state = ckpt.read_state(resume_from)
     acc.load_state(str(resume_from))
     if ema is not None:
@@ -87,11 +100,19 @@ def restore_checkpoint(
                 "%s has no EMA weights; the EMA restarts from the current weights", resume_from
             )
             ema = EMAModel(acc.unwrap_model(unet), ema_decay)
+    train_cfg = state.config.get("train", {})
+    saved = int(train_cfg.get("batch_size", 0)) * int(train_cfg.get("grad_accum", 1))
+    saved *= state.world_size
     if state.world_size != acc.num_processes:
+        logger.info(
+            "resuming a %d-process run on %d processes", state.world_size, acc.num_processes
+        )
+    if per_step_samples is not None and saved and saved != per_step_samples:
         logger.warning(
-            "resuming a %d-process run on %d processes: the data order differs from the original",
-            state.world_size,
-            acc.num_processes,
+            "resuming a run of %d samples per step with %d per step (batch_size x grad_accum x "
+            "processes): the data stream continues, but the steps differ from the original run's",
+            saved,
+            per_step_samples,
         )
     logger.info("resumed from %s at step %d", resume_from, state.step)
     return state, ema

@@ -13,8 +13,12 @@ One optimiser step (per process, per micro-batch):
    embedding, p <= r < 3p zeroes the three conditioning latents;
 6. AdamW step (only the UNet trains), EMA update.
 
-Randomness is a function of (seed, step, process, micro-step) and the data order of (seed, position), so
-`--resume` continues with exactly the loss curve of an uninterrupted run (same process count).
+The data order is a function of (seed, position in the run's data stream) and each sample's randomness
+(noise, timestep, CFG dropout, flips) of (seed, its position) too (`objective.ItemRandom`), so `--resume`
+continues with exactly the loss curve of an uninterrupted run, and N processes of batch B train as one
+process of batch N*B (up to float rounding; also across a resume that changes the process count).
+Several processes on a CPU-only machine join one gloo group (`torchrun --nproc_per_node N` or
+`accelerate launch --multi_gpu --num_processes N`; `accelerate launch --cpu` starts only one).
 
 Non-finite loss or gradients never reach the weights: the step is skipped and counted; after
 `train.max_consecutive_nonfinite` skipped steps in a row a checkpoint is written and
@@ -171,7 +175,8 @@ def _make_accelerator(config: TrainConfig) -> Any:
         raise MissingDependencyError(
             'Training needs accelerate: pip install "gaffer-diffusion[train]"'
         ) from exc
-    if int(os.environ.get("WORLD_SIZE", "1")) == 1:
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    if world_size == 1:
         # a fresh single-process state per call, so one process can run several trainings (tests)
         AcceleratorState._reset_state(reset_partial_state=True)
     mixed_precision = config.train.mixed_precision
@@ -186,11 +191,23 @@ def _make_accelerator(config: TrainConfig) -> Any:
             '(set `train.mixed_precision` to "no" to silence this).'
         )
         mixed_precision = "no"
+    # Several processes on a machine without a GPU (`torchrun`, `accelerate launch --multi_gpu`):
+    # accelerate makes them one gloo group only when told `cpu`; without it each process found
+    # itself alone (DistributedType.NO) and N copies trained into the same output_dir (issue 36).
+    on_cpu = world_size > 1 and not _gpu_available()
     acc = Accelerator(
         mixed_precision=mixed_precision,
         gradient_accumulation_steps=config.train.grad_accum,
         project_dir=str(config.output_dir),
+        cpu=on_cpu,
     )
+    if acc.num_processes != world_size:
+        raise ConfigError(
+            f"the launcher started {world_size} processes (WORLD_SIZE) but accelerate joined "
+            f"{acc.num_processes}; launch with `accelerate launch --multi_gpu --num_processes N` or "
+            "`torchrun --nproc_per_node N` (on a CPU-only machine `accelerate launch --cpu` starts "
+            "one process)."
+        )
     if config.train.mixed_precision == "fp16" and acc.device.type == "cpu":
         logger.warning(
             "`train.mixed_precision` fp16 on a CPU: autocast/grad scaling are GPU features"
@@ -382,7 +399,17 @@ def train(
         step=0, samples_seen=0, world_size=acc.num_processes, config=cfg.to_dict()
     )
     if resume_from is not None:
-        state, ema = restore_checkpoint(resume_from, acc, unet, ema, cfg.train.ema_decay)
+        state, ema = restore_checkpoint(
+            resume_from,
+            acc,
+            unet,
+            ema,
+            cfg.train.ema_decay,
+            per_step_samples=cfg.train.batch_size * cfg.train.grad_accum * acc.num_processes,
+        )
+        # the next checkpoints describe this run (its process count and config), not the resumed
+        # one's: a 1 -> 2 process resume wrote world_size 1 before (issue 36)
+        state = dataclasses.replace(state, world_size=acc.num_processes, config=cfg.to_dict())
     start_step = state.step
 
     batches = _batches(_loader(train_ds, cfg, acc, state.samples_seen))

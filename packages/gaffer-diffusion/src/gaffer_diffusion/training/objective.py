@@ -3,9 +3,10 @@
 `TrainingObjective.loss` takes a micro-batch to its loss: lighting maps rotated and encoded (or the
 authors' pre-encoded ones), optional mirroring, one VAE call for inputs, maps and targets, CLIP of the
 inputs, the forward process at a random timestep, CFG dropout, and the UNet's regression loss.
-Randomness comes only from the generator it is given (`step_generator`).
+Randomness comes only from the per-sample generators it is given (`ItemRandom`).
 """
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -20,15 +21,61 @@ from gaffer_diffusion.geometry import input_normals
 from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_scheduler
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.models.pixel import PixelPosterior
 from gaffer_diffusion.training.batch import TrainBatch
 from gaffer_diffusion.training.config import TrainConfig
 from gaffer_diffusion.training.lighting import batch_lighting_of
 
 
-def step_generator(seed: int, step: int, rank: int, micro: int) -> torch.Generator:
-    """The generator of one micro-step: a function of (seed, step, process, micro-step) only."""
-    state = np.random.SeedSequence([seed, step, rank, micro]).generate_state(2, dtype=np.uint64)
+def sample_generator(seed: int, position: int) -> torch.Generator:
+    """The generator of the sample at `position` of the run's data stream (counted over all
+    processes, as `KeySampler` counts): a function of (seed, position) only."""
+    state = np.random.SeedSequence([seed, position]).generate_state(2, dtype=np.uint64)
     return torch.Generator().manual_seed(int(state[0]) & 0x7FFF_FFFF_FFFF_FFFF)
+
+
+class ItemRandom:
+    """The random streams of one micro-batch, one generator per sample.
+
+    Sample i's noise, timesteps, CFG-dropout draws, posterior sample and mirror flip come from its own
+    generator (`sample_generator(seed, position_i)`), so they do not depend on how the global batch is
+    split over processes and micro-batches: 2 processes of batch B train exactly as 1 process of
+    batch 2B (up to float rounding), and `--resume` may change the process count (issue 36).
+    Every draw takes `per_item` values from each generator in turn and concatenates them, item-major.
+    """
+
+    def __init__(self, generators: Sequence[torch.Generator]) -> None:
+        self.generators = tuple(generators)
+
+    @classmethod
+    def for_positions(cls, seed: int, positions: Sequence[int]) -> "ItemRandom":
+        """One `sample_generator` per data-stream position."""
+        return cls([sample_generator(seed, p) for p in positions])
+
+    def __len__(self) -> int:
+        return len(self.generators)
+
+    def rand(self, *per_item: int) -> Tensor:
+        """U[0, 1) draws, `[len(self) * per_item[0], *per_item[1:]]`."""
+        return torch.cat([torch.rand(per_item, generator=g) for g in self.generators])
+
+    def randn(self, *per_item: int) -> Tensor:
+        """N(0, 1) draws, `[len(self) * per_item[0], *per_item[1:]]`."""
+        return torch.cat([torch.randn(per_item, generator=g) for g in self.generators])
+
+    def randint(self, low: int, high: int, per_item: int) -> Tensor:
+        """Integers in [low, high), `[len(self) * per_item]`."""
+        return torch.cat(
+            [torch.randint(low, high, (per_item,), generator=g) for g in self.generators]
+        )
+
+
+def _posterior_sample(posterior: Any, eps: Tensor) -> Tensor:
+    """A draw of the VAE posterior with the given standard normal `eps` (the pixel autoencoder's
+    posterior has no noise: its latent)."""
+    if isinstance(posterior, PixelPosterior):
+        return posterior.sample()
+    return posterior.mean + posterior.std * eps.to(posterior.mean)
 
 
 def cfg_dropout_masks(r: torch.Tensor, p: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -81,12 +128,15 @@ class TrainingObjective:
         )
 
     # ---------------------------------------------------------------- one micro-step
-    def loss(self, unet: torch.nn.Module, batch: TrainBatch, gen: torch.Generator) -> torch.Tensor:
+    def loss(self, unet: torch.nn.Module, batch: TrainBatch, gen: ItemRandom) -> torch.Tensor:
         """The MSE of one micro-batch against the scheduler's `prediction_type` target (epsilon by
-        default; see the module docstring and `_prediction_target`)."""
+        default; see the module docstring and `_prediction_target`); `gen` has one generator per
+        sample of the batch."""
         cfg, dev, m = self.cfg, self.device, self.model
         b, t = batch.batch_size, batch.targets_per_sample
         n = b * t
+        if len(gen) != b:
+            raise ValueError(f"{len(gen)} sample generators for a batch of {b}")
         res = m.config.resolution
         inputs = batch.input_images.to(dev, non_blocking=True)  # [B, 3, H, W]
         targets = batch.target_images.to(dev, non_blocking=True).flatten(0, 1)  # [BT, 3, H, W]
@@ -110,7 +160,12 @@ class TrainingObjective:
             # [B + 3BT, 3, H, W]  inputs, HDR maps, LDR maps, targets in one VAE call, [0,1] -> [-1,1]
             stacked = torch.cat([inputs, hdr, ldr, targets]) * 2.0 - 1.0
             posterior = vae_posterior(m.vae, stacked.to(self.weight_dtype))
-            sampled = posterior.sample(generator=gen).float()
+            # each sample's posterior noise from its own generator, in the stack's row order
+            eps = gen.randn(1 + 3 * t, *posterior.mode().shape[1:]).view(b, 1 + 3 * t, -1)
+            eps = torch.cat(
+                [eps[:, 0], *(eps[:, 1 + k * t : 1 + (k + 1) * t].flatten(0, 1) for k in range(3))]
+            ).view(posterior.mode().shape)
+            sampled = _posterior_sample(posterior, eps).float()
             cond_all = posterior.mode().float() if cfg.train.cond_latent_mode == "mode" else sampled
             image_lat = cond_all[:b].repeat_interleave(t, dim=0)  # [BT, 4, h, w] raw latents
             hdr_lat = cond_all[b : b + n]
@@ -146,10 +201,10 @@ class TrainingObjective:
                     )
                 )
         cond = torch.cat(parts, dim=1)  # [BT, 12 (+12 hints), h, w]
-        noise = torch.randn(z0.shape, generator=gen).to(dev)
+        noise = gen.randn(t, *z0.shape[1:]).to(dev)  # rows item-major, as z0's
         lo, hi = cfg.train.timestep_range  # checked against the schedule at start-up
-        timesteps = torch.randint(lo, hi + 1, (n,), generator=gen).to(dev)
-        r = torch.rand(n, generator=gen).to(dev)
+        timesteps = gen.randint(lo, hi + 1, t).to(dev)
+        r = gen.rand(t).to(dev)
         drop_clip, drop_lat = cfg_dropout_masks(r, cfg.train.cfg_dropout_p)
         clip = clip * (~drop_clip).to(clip.dtype).view(n, 1, 1)
         cond = cond * (~drop_lat).to(cond.dtype).view(n, 1, 1, 1)
@@ -169,15 +224,17 @@ def _mirror_views(
     hdr: Float[Tensor, "BT 3 H W"],
     targets_per_view: int,
     prob: float,
-    gen: torch.Generator,
+    gen: torch.Generator | ItemRandom,
     alphas: Float[Tensor, "B 1 H W"] | None = None,
 ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor | None]:
     """Flip each view left-right with probability `prob`: its input (and mask), its targets and,
-    mirrored in camera x, their lighting maps (`DataConfig.mirror_prob`)."""
+    mirrored in camera x, their lighting maps (`DataConfig.mirror_prob`). `gen`: one generator for
+    the batch, or one per view (`ItemRandom`, as training uses)."""
     from gaffer_envmap.augment import mirror_camera_x
 
     b = inputs.shape[0]
-    flip_view = (torch.rand(b, generator=gen) < prob).to(inputs.device)  # [B]
+    draws = gen.rand(1) if isinstance(gen, ItemRandom) else torch.rand(b, generator=gen)
+    flip_view = (draws < prob).to(inputs.device)  # [B]
     flip_target = flip_view.repeat_interleave(targets_per_view).view(-1, 1, 1, 1)  # [BT,1,1,1]
     return (
         torch.where(flip_view.view(b, 1, 1, 1), inputs.flip(-1), inputs),

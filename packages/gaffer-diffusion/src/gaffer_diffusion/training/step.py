@@ -16,7 +16,7 @@ from gaffer_diffusion.training import checkpoint as ckpt
 from gaffer_diffusion.training.batch import TrainBatch
 from gaffer_diffusion.training.config import TrainConfig
 from gaffer_diffusion.training.ema import EMAModel
-from gaffer_diffusion.training.objective import TrainingObjective, step_generator
+from gaffer_diffusion.training.objective import ItemRandom, TrainingObjective
 
 logger = logging.getLogger(__name__)
 
@@ -80,7 +80,11 @@ def optimizer_step(
         batch = next(batches)
         wait += time.perf_counter() - tw
         skipped_samples += batch.skipped
-        gen = step_generator(cfg.train.seed, step, acc.process_index, micro)
+        # the global data-stream positions of this micro-batch's samples (KeySampler: process r reads
+        # positions start + r, start + r + W, ...; batches take them in order)
+        b, w = batch.batch_size, acc.num_processes
+        first = state.samples_seen + acc.process_index + micro * b * w
+        gen = ItemRandom.for_positions(cfg.train.seed, [first + j * w for j in range(b)])
         with acc.accumulate(unet):
             loss = parts.objective.loss(unet, batch, gen)
             acc.backward(loss)
