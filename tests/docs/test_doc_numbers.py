@@ -1,0 +1,126 @@
+"""Every measured number in the prose comes from a committed result file (issue 34 item 3).
+
+`docs/_scripts/check_numbers.py` reads README.md, docs/, benchmarks/README.md, the package and
+integration READMEs and the model cards; a number with no declared source, or one that matches no value
+of its sources at the precision shown, fails here with file:line. The other tests check that the
+checker catches what it is for (a stale number, a missing source, a hand-edited generated block) and
+leaves settings, versions and dates alone.
+"""
+
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPT = ROOT / "docs" / "_scripts" / "check_numbers.py"
+R = "benchmarks/results"
+
+
+@pytest.fixture(scope="module")
+def checker() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("check_numbers", SCRIPT)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _page(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "page.md"
+    path.write_text(text)
+    return path
+
+
+def test_every_number_in_the_docs_has_a_matching_source(checker: ModuleType) -> None:
+    pages = checker.pages()
+    # the files the issue names are all read
+    names = {str(p.relative_to(ROOT)) for p in pages}
+    for needed in (
+        "README.md",
+        "docs/speed-vs-accuracy.md",
+        "packages/gaffer-nerf/README.md",
+        "docs/tutorials/relight-nerf.md",
+        "packages/gaffer-diffusion/src/gaffer_diffusion/weights/gaffer-tiny/MODEL_CARD.md",
+    ):
+        assert needed in names
+    failures = [f for page in pages for f in checker.check_page(page)]
+    assert not failures, "numbers without a matching source:\n" + "\n".join(failures)
+
+
+def test_a_stale_number_fails_with_its_line(checker: ModuleType, tmp_path: Path) -> None:
+    # gaffer-nerf's README once said 32.14 dB for the fixed 32^3 fit; nerf.json says 32.473
+    page = _page(
+        tmp_path,
+        f"# x\n\n<!-- numbers-from: {R}/nerf.json -->\n\nThe fit scores 32.47 dB.\n"
+        "Before it scored 32.14 dB.\n",
+    )
+    failures = checker.check_page(page)
+    assert len(failures) == 1
+    assert failures[0].startswith(f"{page}:6: 32.14 dB")
+
+
+def test_a_number_without_a_source_fails(checker: ModuleType, tmp_path: Path) -> None:
+    page = _page(tmp_path, "# x\n\nIt takes 4.2 s and scores 18.37 dB, 87% of the time.\n")
+    failures = checker.check_page(page)
+    assert [f.split(": ")[1] for f in failures] == ["4.2 s", "18.37 dB", "87%"]
+    assert all("no numbers-from source declared" in f for f in failures)
+
+
+def test_a_declaration_covers_its_section_only(checker: ModuleType, tmp_path: Path) -> None:
+    page = _page(
+        tmp_path,
+        f"# x\n\n## a\n\n<!-- numbers-from: {R}/nerf.json -->\n\n32.47 dB\n\n## b\n\n32.47 dB\n",
+    )
+    failures = checker.check_page(page)
+    assert len(failures) == 1 and failures[0].startswith(f"{page}:11: 32.47 dB")
+
+
+def test_derived_forms_are_narrow(checker: ModuleType, tmp_path: Path) -> None:
+    test06 = f"{R}/reshade_render_test06.json"
+    ok = _page(
+        tmp_path,
+        f"<!-- numbers-from: {test06} -->\n# x\n\n"
+        # a difference of a row's score and its input's (15.84 - 11.93), a share as a percent
+        "It scores +3.91 dB over the input and is closer on 88% of pairs.\n",
+    )
+    assert checker.check_page(ok) == []
+    bad = _page(tmp_path, f"<!-- numbers-from: {test06} -->\n# x\n\nIt scores +3.95 dB.\n")
+    assert len(checker.check_page(bad)) == 1
+    # a ratio's unit must fit the leaf: 17x must not match a 17.18 ms timing
+    ratio = _page(
+        tmp_path,
+        f"<!-- numbers-from: {R}/envmap_filters.json -->\n# x\n\nabout 17× slower\n",
+    )
+    assert len(checker.check_page(ratio)) == 1
+
+
+def test_settings_versions_and_dates_are_not_measurements(
+    checker: ModuleType, tmp_path: Path
+) -> None:
+    page = _page(
+        tmp_path,
+        "# x\n\ngaffer-tiny 0.5.1 at 128 px, 50 steps, 3 views, a 512×256 map, lr `1e-4`, "
+        "torch 2.13.0, on 2026-12-04 at 20:50 (§4.2, issue 18), 0.4 against 0.5, L1 8e-6.\n\n"
+        "```bash\ngaffer-nerf fit x --lr 0.02 --steps 12.5\n```\n",
+    )
+    assert checker.check_page(page) == []
+
+
+def test_a_missing_source_file_fails(checker: ModuleType, tmp_path: Path) -> None:
+    page = _page(tmp_path, f"# x\n\n<!-- numbers-from: {R}/no_such.json -->\n\nplain text\n")
+    failures = checker.check_page(page)
+    assert failures and "is not a JSON file" in failures[0]
+
+
+def test_a_hand_edited_generated_block_fails(checker: ModuleType, tmp_path: Path) -> None:
+    readme = (ROOT / "README.md").read_text()
+    open_, close = "<!-- generated: gaffer-tiny-headline -->", "<!-- /generated -->"
+    block = open_ + readme.split(open_, 1)[1].split(close, 1)[0] + close
+    # the block as generated passes without any declaration: its generator rebuilds it from files
+    assert checker.check_page(_page(tmp_path, f"# x\n\n{block}\n")) == []
+    edited = block.replace("15.84", "15.94", 1)
+    assert edited != block
+    failures = checker.check_page(_page(tmp_path, f"# x\n\n{edited}\n"))
+    assert any("headline differs" in f for f in failures)
