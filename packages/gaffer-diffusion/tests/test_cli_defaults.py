@@ -9,6 +9,7 @@ import pytest
 from gaffer_diffusion import pretrained
 from gaffer_diffusion.cli import _compat, _object_fraction, _parser
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.suggested import read_default_sampling
 
 
 def _args(*extra: str) -> argparse.Namespace:
@@ -17,8 +18,9 @@ def _args(*extra: str) -> argparse.Namespace:
 
 def test_defaults_follow_the_model() -> None:
     shipped = _args()
-    assert _compat(shipped) == pretrained.GAFFER_TINY_COMPAT == "default"
-    assert _object_fraction(shipped) == pretrained.GAFFER_TINY_OBJECT_FRACTION == 0.75
+    own = read_default_sampling(pretrained.gaffer_tiny_path())  # gaffer-tiny's manifest
+    assert _compat(shipped) == own.compat == "default"
+    assert _object_fraction(shipped) == own.object_fraction == 0.75
     other = _args("--checkpoint", "ckpt")
     assert other.checkpoint == Path("ckpt")
     assert _compat(other) == "neural-gaffer" and _object_fraction(other) is None
@@ -51,4 +53,4 @@ def test_an_explicit_zero_is_refused_not_read_as_the_default(flag) -> None:
         with pytest.raises(ConfigError, match=flag):
             _sampling(args)
     ok = _sampling(_parser().parse_args(["relight", "x.png", "--out", "o.png"]))
-    assert ok.num_inference_steps == pretrained.GAFFER_TINY_STEPS
+    assert ok.num_inference_steps == read_default_sampling(None).num_inference_steps == 1

@@ -249,9 +249,13 @@ def _relight_args(tmp_path: Path) -> list[str]:
 def test_relight_and_demo_without_checkpoint_use_gaffer_tiny_stand_in(
     tmp_path, model_dir, example, monkeypatch, caplog
 ) -> None:
-    """The wiring, with a random `tiny` model standing in for the shipped weights."""
+    """The wiring, with a random `tiny` model standing in for the shipped weights (and recording
+    the shipped gaffer-tiny's sampling, which every command reads from the folder)."""
     from gaffer_diffusion import pretrained
+    from gaffer_diffusion.suggested import read_default_sampling
 
+    shipped = read_default_sampling(pretrained.gaffer_tiny_path())
+    model_dir = save_pretrained(tiny_model(), tmp_path / "stand-in", suggested=shipped)
     monkeypatch.setattr(pretrained, "gaffer_tiny_path", lambda: model_dir)
     args = [*_relight_args(tmp_path), "--azimuth", "30", "--elevation", "10"]
     with caplog.at_level(logging.INFO, logger="gaffer_diffusion"):
@@ -265,8 +269,8 @@ def test_relight_and_demo_without_checkpoint_use_gaffer_tiny_stand_in(
     assert "using gaffer-tiny" in caplog.text
     settings = json.loads(result.metrics_json.read_text())["settings"]
     assert settings["model"] == "gaffer-tiny"
-    assert settings["num_inference_steps"] == pretrained.GAFFER_TINY_STEPS
-    assert settings["guidance_scale"] == pretrained.GAFFER_TINY_GUIDANCE
+    assert settings["num_inference_steps"] == shipped.num_inference_steps == 1
+    assert settings["guidance_scale"] == shipped.guidance_scale == 1.0
 
 
 @pytest.mark.skipif(not _gaffer_tiny_present(), reason="gaffer-tiny weights not in the package yet")

@@ -12,6 +12,7 @@ from gaffer_diffusion.loading import MANIFEST_NAME, save_pretrained
 from gaffer_diffusion.suggested import (
     PAPER_SUGGESTION,
     SuggestedSampling,
+    read_default_sampling,
     read_suggested_sampling,
     suggestion_from_training_config,
 )
@@ -19,16 +20,14 @@ from gaffer_diffusion.testing import tiny_model
 
 
 def test_shipped_manifest_records_the_documented_setting() -> None:
+    # the model card's setting (MODEL_CARD.md "suggested setting"), recorded once in the manifest
     own = read_suggested_sampling(pretrained.gaffer_tiny_path())
     assert own is not PAPER_SUGGESTION
-    assert (own.num_inference_steps, own.guidance_scale, own.average_samples) == (
-        pretrained.GAFFER_TINY_STEPS,
-        pretrained.GAFFER_TINY_GUIDANCE,
-        pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
-    )
-    assert own.mirror_average == pretrained.GAFFER_TINY_MIRROR_AVERAGE
-    assert own.compat == pretrained.GAFFER_TINY_COMPAT
-    assert own.object_fraction == pretrained.GAFFER_TINY_OBJECT_FRACTION
+    assert (own.num_inference_steps, own.guidance_scale, own.average_samples) == (1, 1.0, 1)
+    assert own.mirror_average is True
+    assert own.compat == "default" and own.latent_mode == "mode"
+    assert own.object_fraction == 0.75
+    assert read_default_sampling(None) == own  # no folder: the shipped gaffer-tiny's
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +90,9 @@ def test_cli_samples_a_self_trained_model_its_own_way(own_folder: Path) -> None:
     s = cli._sampling(_args(own_folder, steps=9, compat="neural-gaffer"))
     assert s.num_inference_steps == 9 and s.latent_mode == "sample"
     # no --checkpoint: the shipped gaffer-tiny's
-    assert cli._sampling(_args(None)).num_inference_steps == pretrained.GAFFER_TINY_STEPS
-    assert cli._compat(_args(None)) == pretrained.GAFFER_TINY_COMPAT
+    shipped = read_default_sampling(pretrained.gaffer_tiny_path())
+    assert cli._sampling(_args(None)).num_inference_steps == shipped.num_inference_steps == 1
+    assert cli._compat(_args(None)) == shipped.compat == "default"
 
 
 def test_training_config_gives_the_suggestion() -> None:

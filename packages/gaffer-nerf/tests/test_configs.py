@@ -4,9 +4,9 @@ import dataclasses
 
 import pytest
 
+from gaffer_diffusion import PAPER_SAMPLING
 from gaffer_nerf.configs import (
     ABLATIONS,
-    PAPER_SAMPLING,
     FitConfig,
     RelightConfig,
     SceneBoxConfig,

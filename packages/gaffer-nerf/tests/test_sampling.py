@@ -15,12 +15,7 @@ from gaffer_diffusion import RelightPipeline
 from gaffer_diffusion.demo import load_model, sampling_for
 from gaffer_nerf.cli import main
 from gaffer_nerf.configs import DiffusionSamplingConfig, relight_preset
-from gaffer_nerf.guidance import (
-    DiffusionGuide,
-    load_relighting_model,
-    smoke_model,
-    suggested_sampling,
-)
+from gaffer_nerf.guidance import DiffusionGuide, load_relighting_model, smoke_model
 from gaffer_nerf.guidance.diffusion import DiffusionGuide as _Guide
 from gaffer_nerf.testing import write_sphere_scene
 
@@ -29,7 +24,7 @@ from gaffer_nerf.testing import write_sphere_scene
 def gaffer_diffusion_choice() -> tuple[Any, str]:
     """What gaffer-diffusion itself samples gaffer-tiny with (`gaffer-diffusion relight`/demo)."""
     loaded = load_model(None)
-    return sampling_for(loaded, None, None), str(loaded.suggested_compat)
+    return sampling_for(loaded, None, None), str(loaded.default_sampling.compat)
 
 
 class Recorder:
@@ -92,7 +87,9 @@ def _relight(scene: Any, field: Path, out: Path, *extra: str) -> list[str]:
 
 def test_suggestions_come_from_the_model() -> None:
     tiny = load_relighting_model(None)
-    assert tiny.suggested == suggested_sampling(tiny.model)
+    # read once from its folder; a pipeline built in memory around the same model agrees
+    assert tiny.suggested == tiny.pipeline.default_sampling
+    assert tiny.suggested == RelightPipeline(tiny.model).default_sampling
     s = tiny.suggested
     assert (s.num_inference_steps, s.guidance_scale, s.mirror_average, s.compat) == (
         1,
@@ -100,7 +97,7 @@ def test_suggestions_come_from_the_model() -> None:
         True,
         "default",
     )
-    smoke = suggested_sampling(smoke_model())  # no suggestion of its own: the paper's
+    smoke = RelightPipeline(smoke_model()).default_sampling  # none of its own: the paper's
     assert (smoke.num_inference_steps, smoke.guidance_scale, smoke.compat) == (
         50,
         3.0,

@@ -1,13 +1,15 @@
 """`gaffer-tiny`: the small pixel-space relighting model trained by this project and shipped in the wheel.
 
 The weights live in `gaffer_diffusion/weights/gaffer-tiny/` in our own format (`save_pretrained`), with
-`MODEL_CARD.md` (data, commands, training time, held-out numbers). A held-out example object rendered
-with gaffer-data lives in `gaffer_diffusion/data/example/` (`example_dataset_path()`).
+`MODEL_CARD.md` (data, commands, training time, held-out numbers); how it is meant to be sampled is
+recorded once, in its `gaffer_model.json` (`suggested_sampling`, which `gaffer_diffusion.load_pipeline()`
+reads into `default_sampling`). A held-out
+example object rendered with gaffer-data lives in `gaffer_diffusion/data/example/`
+(`example_dataset_path()`).
 
 Example:
-    >>> from gaffer_diffusion import RelightPipeline
-    >>> from gaffer_diffusion.pretrained import load_gaffer_tiny
-    >>> pipe = RelightPipeline(load_gaffer_tiny().model)  # doctest: +SKIP
+    >>> from gaffer_diffusion import load_pipeline
+    >>> pipe = load_pipeline()  # gaffer-tiny  # doctest: +SKIP
 """
 
 from importlib import resources
@@ -17,28 +19,9 @@ from typing import TYPE_CHECKING
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointNotFoundError
 
-# `loading` imports torch and diffusers; the CLI reads this module's constants first
+# `loading` imports torch and diffusers; the CLI imports this module before it checks its flags
 if TYPE_CHECKING:
     from gaffer_diffusion.loading import LoadResult
-
-GAFFER_TINY_STEPS = 1
-"""DDIM steps gaffer-tiny was evaluated with (its model card's numbers); the suggested default."""
-
-GAFFER_TINY_GUIDANCE = 1.0
-"""Classifier-free guidance scale gaffer-tiny was evaluated with."""
-
-GAFFER_TINY_AVERAGE_SAMPLES = 1
-"""Samples averaged per output (`SamplingConfig.average_samples`) in gaffer-tiny's suggested setting."""
-
-GAFFER_TINY_MIRROR_AVERAGE = True
-"""Whether gaffer-tiny's suggested setting averages with the mirrored input (`SamplingConfig.mirror_average`)."""
-
-GAFFER_TINY_COMPAT = "default"
-"""The lighting encoding gaffer-tiny was trained with (gaffer-envmap's default, not the authors')."""
-
-GAFFER_TINY_OBJECT_FRACTION = 0.75
-"""The framing gaffer-tiny was trained with: object-centred square crops in which the object's longer
-side spans 75% (`DataConfig.object_fraction`; `prepare_object_image`'s default for photos)."""
 
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
@@ -61,6 +44,22 @@ def gaffer_tiny_path() -> Path:
 def example_dataset_path() -> Path:
     """The shipped held-out example object, a gaffer-data render folder (`dataset.json`, `objects/`)."""
     return _package_dir("data", "example")
+
+
+def not_our_folder_message(root: Path, flag: str, base_model_flag: str | None) -> str:
+    """The refusal of a folder without our manifest and without a base model (torch-free, so the
+    command line says it before loading anything)."""
+    what = f"`{flag}` {root} is not a gaffer-diffusion model folder (no {MANIFEST_NAME})"
+    if base_model_flag is None:
+        return (
+            f"{what}. Only our format loads here; relight with the authors' release through "
+            "`gaffer-diffusion relight --checkpoint checkpoint-80000/ --base-model DIR`."
+        )
+    return (
+        f"{what}, so it is taken as the authors' release, which needs `{base_model_flag} DIR` (a "
+        "local Zero-1-to-3 XL diffusers folder with vae/, image_encoder/, scheduler/, "
+        "unet/config.json)."
+    )
 
 
 def load_gaffer_tiny(*, strict: bool = True) -> "LoadResult":
@@ -87,13 +86,8 @@ def load_gaffer_tiny(*, strict: bool = True) -> "LoadResult":
 
 
 __all__ = [
-    "GAFFER_TINY_AVERAGE_SAMPLES",
-    "GAFFER_TINY_COMPAT",
-    "GAFFER_TINY_GUIDANCE",
-    "GAFFER_TINY_MIRROR_AVERAGE",
-    "GAFFER_TINY_OBJECT_FRACTION",
-    "GAFFER_TINY_STEPS",
     "example_dataset_path",
     "gaffer_tiny_path",
     "load_gaffer_tiny",
+    "not_our_folder_message",
 ]

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion._choices import MANIFEST_NAME
-from gaffer_diffusion.errors import CheckpointMismatchError
+from gaffer_diffusion.errors import CheckpointMismatchError, ConfigError
 
 if TYPE_CHECKING:
     from gaffer_diffusion.pipelines.config import SamplingConfig
@@ -90,29 +90,54 @@ class DefaultSampling:
     source: str = ""
 
     def __post_init__(self) -> None:
+        # the command-line flag of each value in parentheses: an override that is out of range is
+        # refused here, naming the flag (a manifest's own block is refused by its reader)
         problems = []
         if not (
             isinstance(self.num_inference_steps, int) and 1 <= self.num_inference_steps <= 1000
         ):
-            problems.append(f"num_inference_steps {self.num_inference_steps!r} (need 1..1000)")
+            problems.append(
+                f"num_inference_steps (--steps) {self.num_inference_steps!r} (need 1..1000)"
+            )
         g = self.guidance_scale
         if not (isinstance(g, int | float) and math.isfinite(g) and g >= 0):
-            problems.append(f"guidance_scale {g!r} (need finite >= 0)")
+            problems.append(f"guidance_scale (--guidance) {g!r} (need finite >= 0)")
         if not (isinstance(self.average_samples, int) and self.average_samples >= 1):
-            problems.append(f"average_samples {self.average_samples!r} (need >= 1)")
+            problems.append(
+                f"average_samples (--average-samples) {self.average_samples!r} (need >= 1)"
+            )
         if self.compat not in ("neural-gaffer", "default"):
-            problems.append(f"compat {self.compat!r} (need 'neural-gaffer' or 'default')")
+            problems.append(
+                f"compat (--compat) {self.compat!r} (need 'neural-gaffer' or 'default')"
+            )
         f = self.object_fraction
         if f is not None and not (isinstance(f, int | float) and 0 < f <= 1):
-            problems.append(f"object_fraction {f!r} (need (0, 1] or null)")
+            problems.append(f"object_fraction (--object-fraction) {f!r} (need (0, 1] or null)")
         if problems:
-            raise ValueError("suggested sampling: " + "; ".join(problems))
+            raise ConfigError("sampling: " + "; ".join(problems))
 
     def to_json(self) -> dict[str, Any]:
         """The manifest block (without `source`, which says where a reader found it)."""
         body = asdict(self)
         body.pop("source")
         return body
+
+    def describe(self) -> str:
+        """One line, e.g. "1 DDIM step, guidance 1, mirror average, 'default' encoding, latent mode"."""
+        steps = self.num_inference_steps
+        parts = [
+            f"{steps} DDIM step{'s' if steps != 1 else ''}",
+            f"guidance {self.guidance_scale:g}",
+        ]
+        if self.average_samples > 1:
+            parts.append(f"mean of {self.average_samples} samples")
+        if self.mirror_average:
+            parts.append("mirror average")
+        parts.append(f"{self.compat!r} encoding")
+        parts.append(f"latent {self.latent_mode}")
+        if self.object_fraction is not None:
+            parts.append(f"object-centred crops ({self.object_fraction:g})")
+        return ", ".join(parts)
 
     @property
     def latent_mode(self) -> LatentModeName:

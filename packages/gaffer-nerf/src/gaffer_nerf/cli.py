@@ -372,12 +372,12 @@ def _fit_config(args: argparse.Namespace) -> Any:
     return dataclasses.replace(cfg, **changes)
 
 
-def _load_diffusion(args: argparse.Namespace) -> Any:
+def _load_diffusion(args: argparse.Namespace, runtime: Any = None) -> Any:
     """The relighting model (`--checkpoint`, else gaffer-tiny, or the random smoke model)."""
     from gaffer_nerf.guidance.model import load_relighting_model
 
     return load_relighting_model(
-        args.checkpoint, args.base_model, smoke=args.diffusion_preset == "tiny"
+        args.checkpoint, args.base_model, smoke=args.diffusion_preset == "tiny", runtime=runtime
     )
 
 
@@ -514,7 +514,7 @@ def _relight(args: argparse.Namespace) -> int:
     cfg = _check_relight_args(args)
     device = preflight.resolve_device(args.device)
 
-    from gaffer_diffusion import RelightPipeline, RuntimeConfig
+    from gaffer_diffusion import RuntimeConfig
     from gaffer_nerf.checkpoint import load_field, save_field
     from gaffer_nerf.data import read_gaffer_data_object
     from gaffer_nerf.evaluate import write_images
@@ -526,10 +526,9 @@ def _relight(args: argparse.Namespace) -> int:
     env = _target_envmap(args, scene)
     field = load_field(args.field, device=device)
     logger.info("loading the diffusion model (%s)", args.checkpoint or "gaffer-tiny")
-    loaded = _load_diffusion(args)
     dtype = "float16" if device.startswith("cuda") else "float32"
-    pipe = RelightPipeline(loaded.model, RuntimeConfig(device=device, dtype=dtype))
-    guide = DiffusionGuide(pipe, cfg.diffusion, loaded.suggested)
+    loaded = _load_diffusion(args, RuntimeConfig(device=device, dtype=dtype))
+    guide = DiffusionGuide(loaded.pipeline, cfg.diffusion)
     s = guide.sampling
     whose = "flags over the model's suggestion" if _sampling_overridden(args) else "the model's own"
     print(  # the one line that says which model and which sampling

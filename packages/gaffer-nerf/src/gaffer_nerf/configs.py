@@ -17,6 +17,9 @@ from typing import TYPE_CHECKING, Literal, assert_never
 
 from gaffer_nerf.errors import ConfigError
 
+if TYPE_CHECKING:
+    from gaffer_diffusion import DefaultSampling
+
 Ranks = tuple[int, int, int]
 
 SizingMode = Literal["fixed", "footprint"]
@@ -344,69 +347,12 @@ CompatName = Literal["neural-gaffer", "default"]
 
 
 @dataclass(frozen=True, kw_only=True)
-class ModelSampling:
-    """A relighting model's own suggested sampling: what it was evaluated with.
-
-    `DiffusionSamplingConfig` fields left at None take these values (`DiffusionSamplingConfig.resolved`),
-    so every path that samples the model (Stage 1, Stage 2 guidance, SDS) uses the model's setting
-    unless the user overrides it. `gaffer_nerf.guidance.suggested_sampling` gives a model's.
-
-    Attributes:
-        num_inference_steps: DDIM steps of the full schedule.
-        guidance_scale: classifier-free guidance scale (1.0: no unconditional branch).
-        average_samples: samples averaged per output (`SamplingConfig.average_samples`).
-        mirror_average: also relight the mirrored input and average (`SamplingConfig.mirror_average`).
-        compat: the lighting encoding the model was trained with.
-        latent_mode: conditioning latents from the VAE posterior "mode" or a "sample".
-        object_fraction: the object-centred framing it was trained with (the object's longer side
-            spans this fraction of a square crop; gaffer-tiny: 0.75), None: whole views (the paper).
-        source: where the setting comes from, for logs and reports.
-    """
-
-    num_inference_steps: int
-    guidance_scale: float
-    average_samples: int = 1
-    mirror_average: bool = False
-    compat: CompatName = "neural-gaffer"
-    latent_mode: Literal["mode", "sample"] = "mode"
-    object_fraction: float | None = None
-    source: str = ""
-
-    def describe(self) -> str:
-        """One line, e.g. "1 DDIM step, guidance 1, mirror average, 'default' encoding"."""
-        steps = self.num_inference_steps
-        parts = [
-            f"{steps} DDIM step{'s' if steps != 1 else ''}",
-            f"guidance {self.guidance_scale:g}",
-        ]
-        if self.average_samples > 1:
-            parts.append(f"mean of {self.average_samples} samples")
-        if self.mirror_average:
-            parts.append("mirror average")
-        parts.append(f"{self.compat!r} encoding")
-        parts.append(f"latent {self.latent_mode}")
-        if self.object_fraction is not None:
-            parts.append(f"object-centred crops ({self.object_fraction:g})")
-        return ", ".join(parts)
-
-
-PAPER_SAMPLING = ModelSampling(
-    num_inference_steps=50,
-    guidance_scale=3.0,
-    compat="neural-gaffer",
-    latent_mode="sample",
-    source="the paper's settings (the model suggests none)",
-)
-"""The paper's sampling (official implementation §2): for models without a suggestion of their own.
-The posterior "sample" is the authors' inference (gaffer-diffusion relight does the same)."""
-
-
-@dataclass(frozen=True, kw_only=True)
 class DiffusionSamplingConfig:
     """How the diffusion model is called from the relighting stages (official implementation §2).
 
-    None means "the model's own suggestion" (`ModelSampling`; gaffer-tiny: 1 step, guidance 1,
-    mirror average, "default" encoding; a model without one: the paper's 50 steps, guidance 3).
+    None means "the model's own" (`RelightPipeline.default_sampling`, read from its folder once;
+    gaffer-tiny: 1 step, guidance 1, mirror average, "default" encoding; a model without one: the
+    paper's 50 steps, guidance 3); `resolved` overrides it with the values given.
 
     Attributes:
         num_inference_steps: DDIM steps of the full schedule; Stage 2 runs the ones below t*.
@@ -492,35 +438,34 @@ class DiffusionSamplingConfig:
                 f"`latent_mode` (--latent-mode) is {self.latent_mode!r}; expected 'mode' or 'sample'."
             )
 
-    def resolved(self, suggested: ModelSampling) -> "DiffusionSamplingConfig":
-        """This config with every None replaced by the model's suggestion (`suggested`).
+    def resolved(self, default: "DefaultSampling") -> "DiffusionSamplingConfig":
+        """This config with every None replaced by the model's own sampling (`default`, a
+        pipeline's `default_sampling`); an explicit encoding brings its latent mode
+        (`gaffer_diffusion.latent_mode_for`, the rule `gaffer-diffusion relight` follows).
 
         Example:
+            >>> from gaffer_diffusion import PAPER_SAMPLING
             >>> DiffusionSamplingConfig(guidance_scale=2.0).resolved(PAPER_SAMPLING).num_inference_steps
             50
         """
-
-        def pick(mine: object, theirs: object) -> object:
-            return theirs if mine is None else mine
-
+        own = default.override(
+            num_inference_steps=self.num_inference_steps,
+            guidance_scale=self.guidance_scale,
+            average_samples=self.average_samples,
+            mirror_average=self.mirror_average,
+            compat=self.compat,
+        )
+        fraction = own.object_fraction
         return replace(
             self,
-            num_inference_steps=pick(self.num_inference_steps, suggested.num_inference_steps),
-            guidance_scale=pick(self.guidance_scale, suggested.guidance_scale),
-            average_samples=pick(self.average_samples, suggested.average_samples),
-            mirror_average=pick(self.mirror_average, suggested.mirror_average),
-            # an explicit encoding brings its latent mode (gaffer-diffusion relight's rule)
-            latent_mode=pick(
-                self.latent_mode,
-                suggested.latent_mode
-                if self.compat is None
-                else ("sample" if self.compat == "neural-gaffer" else "mode"),
-            ),
-            compat=pick(self.compat, suggested.compat),
-            object_fraction=pick(
-                self.object_fraction,
-                "whole" if suggested.object_fraction is None else suggested.object_fraction,
-            ),
+            num_inference_steps=own.num_inference_steps,
+            guidance_scale=float(own.guidance_scale),
+            average_samples=own.average_samples,
+            mirror_average=bool(own.mirror_average),
+            latent_mode=self.latent_mode or own.latent_mode,
+            compat=own.compat,
+            object_fraction=self.object_fraction
+            or ("whole" if fraction is None else float(fraction)),
         )
 
     @property

@@ -39,7 +39,6 @@ from gaffer_diffusion.conditioning import (
 from gaffer_diffusion.demo import LoadedModel, load_model, sampling_for
 from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
 from gaffer_diffusion.insert_geometry import InsertLighting
-from gaffer_diffusion.loading import load_authors_release
 from gaffer_diffusion.photo import (
     Photo,
     PreparedPhoto,
@@ -242,16 +241,17 @@ class Engine:
             return self._models[label]
 
     def _load(self, choice: ModelChoice) -> ReadyModel:
-        if choice.base_model is not None and choice.checkpoint is not None:
-            result = load_authors_release(choice.checkpoint, choice.base_model)
-            logger.info("%s", result.report.summary())
-            loaded = LoadedModel(model=result.model, name=choice.label, source=choice.checkpoint)
-        else:
-            loaded = load_model(choice.checkpoint, flag="--model")
-        pipe = RelightPipeline(loaded.model, RuntimeConfig(device=self.config.device))
+        authors = choice.base_model is not None and choice.checkpoint is not None
+        loaded = load_model(
+            choice.checkpoint,
+            flag="--model",
+            base_model=choice.base_model if authors else None,
+            runtime=RuntimeConfig(device=self.config.device),
+            name=choice.label if authors else None,
+        )
         # A model's own encoding (gaffer-tiny: gaffer-envmap's default); others: the authors' (as relight).
-        compat: CompatMode = loaded.suggested_compat or "neural-gaffer"
-        return ReadyModel(loaded=loaded, pipe=pipe, compat=compat)
+        compat: CompatMode = loaded.default_sampling.compat
+        return ReadyModel(loaded=loaded, pipe=loaded.pipeline, compat=compat)
 
     def envmap(self, path: str | Path) -> Any:
         """Read (and cache) an equirectangular `.exr`/`.hdr` map, checking its size.
@@ -413,7 +413,7 @@ class Engine:
         if max_side is not None and max(photo.size_wh) > max_side:
             shrunk_from = photo.size_wh
             photo, alpha = _shrink(photo, alpha, max_side)
-        fraction = m.loaded.suggested_object_fraction
+        fraction = m.loaded.default_sampling.object_fraction
         prepared = prepare_photo(
             photo,
             alpha,

@@ -1,20 +1,20 @@
-"""Helpers every model command shares: loading the model (`--checkpoint`, `--base-model`), the
-model's suggested sampling, encoding and framing when a flag is left out, the torch device and
-precision, and writing PNGs, progress bars and input folders. torch is imported only inside the
-functions that need it."""
+"""Helpers every model command shares: loading the model (`--checkpoint`, `--base-model`) through
+`load_pipeline`, the model's own sampling with the flags given as overrides (`DefaultSampling`), the
+torch device and precision, and writing PNGs, progress bars and input folders. torch is imported only
+inside the functions that need it."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import sys
+from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaffer_diffusion import pretrained
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import ConfigError, InputValueError
-from gaffer_diffusion.suggested import SuggestedSampling, read_suggested_sampling
+from gaffer_diffusion.suggested import DefaultSampling, read_default_sampling
 
 if TYPE_CHECKING:
     import numpy as np
@@ -22,52 +22,62 @@ if TYPE_CHECKING:
     from tqdm import tqdm
 
     from gaffer_diffusion.models.model import NeuralGafferModel
-    from gaffer_diffusion.pipelines import RuntimeConfig, SamplingConfig
+    from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 
 logger = logging.getLogger("gaffer_diffusion.cli")  # the name log lines carried before the split
 
 
+def _load_pipeline(args: argparse.Namespace) -> RelightPipeline:
+    """`--checkpoint` (ours or, with `--base-model`, the authors'), else gaffer-tiny, on `_runtime`."""
+    from gaffer_diffusion.pipelines import load_pipeline
+
+    return load_pipeline(args.checkpoint, args.base_model, runtime=_runtime(args))
+
+
 def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGafferModel:
-    from gaffer_diffusion.loading import load_authors_release, load_pretrained
+    """The networks `load_pipeline` loads (float32, CPU), for commands that build their own pipeline."""
+    from gaffer_diffusion.pipelines import load_pipeline
 
-    if checkpoint is None:
-        from gaffer_diffusion.demo import load_model
-
-        if base_model is not None:
-            raise ConfigError("`--base-model` goes with the authors' `--checkpoint`; pass both.")
-        return load_model(None).model  # logs that (and where from) it uses gaffer-tiny
-    if (checkpoint / MANIFEST_NAME).is_file():
-        return load_pretrained(checkpoint).model
-    if base_model is None:
-        raise _base_model_error(checkpoint)
-    result = load_authors_release(checkpoint, base_model)
-    logger.info("%s", result.report.summary())
-    return result.model
+    return load_pipeline(checkpoint, base_model).model
 
 
 def _base_model_error(checkpoint: Path) -> ConfigError:
-    return ConfigError(
-        f"`--checkpoint` {checkpoint} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}), so "
-        "it is taken as the authors' release, which needs `--base-model DIR` (a local Zero-1-to-3 XL "
-        "diffusers folder with vae/, image_encoder/, scheduler/, unet/config.json)."
-    )
+    from gaffer_diffusion.pretrained import not_our_folder_message
+
+    return ConfigError(not_our_folder_message(checkpoint, "--checkpoint", "--base-model"))
 
 
-def _suggestion(args: argparse.Namespace) -> SuggestedSampling:
-    """The model's own sampling (`gaffer_diffusion.suggested`): the shipped gaffer-tiny's without
-    `--checkpoint`, else what the model folder records (the paper's for the authors' release or a
-    folder that records none). A JSON read, no torch."""
+def _defaults(args: argparse.Namespace) -> DefaultSampling:
+    """The model's own sampling (`DefaultSampling`): the shipped gaffer-tiny's without `--checkpoint`,
+    else what the model folder records (the paper's for the authors' release or a folder that records
+    none). A JSON read, no torch, once per folder and manifest version (`_read_defaults`)."""
+    from gaffer_diffusion import pretrained
+
     checkpoint = getattr(args, "checkpoint", None)
-    return read_suggested_sampling(
-        pretrained.gaffer_tiny_path() if checkpoint is None else Path(checkpoint).expanduser()
+    folder = pretrained.gaffer_tiny_path() if checkpoint is None else Path(checkpoint).expanduser()
+    manifest = folder / MANIFEST_NAME
+    return _read_defaults(str(folder), manifest.stat().st_mtime_ns if manifest.is_file() else 0)
+
+
+@lru_cache(maxsize=8)
+def _read_defaults(folder: str, _manifest_mtime_ns: int) -> DefaultSampling:
+    return read_default_sampling(Path(folder))
+
+
+def _overridden(args: argparse.Namespace) -> DefaultSampling:
+    """`_defaults` with every sampling flag the user gave (`--steps`, `--guidance`, ...)."""
+    return _defaults(args).override(
+        num_inference_steps=getattr(args, "steps", None),
+        guidance_scale=getattr(args, "guidance", None),
+        average_samples=getattr(args, "average_samples", None),
+        mirror_average=getattr(args, "mirror_average", None),
+        compat=getattr(args, "compat", None),
     )
 
 
 def _compat(args: argparse.Namespace) -> Any:
-    """`--compat`, else the lighting encoding the model was trained with (`_suggestion`)."""
-    if args.compat is not None:
-        return args.compat
-    return _suggestion(args).compat
+    """`--compat`, else the lighting encoding the model was trained with (`_defaults`)."""
+    return args.compat if args.compat is not None else _defaults(args).compat
 
 
 def _object_fraction(args: argparse.Namespace) -> float | None:
@@ -77,34 +87,22 @@ def _object_fraction(args: argparse.Namespace) -> float | None:
                 f"`--object-fraction` is {args.object_fraction}; pass a fraction in (0, 1], e.g. 0.75."
             )
         return float(args.object_fraction)
-    return _suggestion(args).object_fraction
+    return _defaults(args).object_fraction
 
 
 def _sampling(args: argparse.Namespace) -> SamplingConfig:
-    from gaffer_diffusion.pipelines import SamplingConfig
-
-    # every value the user leaves out is the model's own (its folder's `suggested_sampling`)
-    suggested = _suggestion(args)
-
-    def pick(given: Any, own: Any) -> Any:
-        return own if given is None else given
-
-    # an explicit 0 is refused by SamplingConfig (it used to mean "the default" silently)
-    return SamplingConfig(
-        num_inference_steps=pick(args.steps, suggested.num_inference_steps),
-        guidance_scale=pick(args.guidance, suggested.guidance_scale),
-        scheduler=args.scheduler,
-        average_samples=pick(args.average_samples, suggested.average_samples),
-        mirror_average=bool(pick(args.mirror_average, suggested.mirror_average)),
-        latent_mode=_latent_mode(args),
+    """Every value the user leaves out is the model's own (its folder's `suggested_sampling`); an
+    explicit 0 is refused by `SamplingConfig` (it used to mean "the default" silently)."""
+    return _overridden(args).sampling_config(
+        latent_mode=_latent_mode(args), scheduler=args.scheduler
     )
 
 
 def _latent_mode(args: argparse.Namespace) -> Any:
-    """`--latent-mode`, else the authors' posterior sample under `--compat neural-gaffer` (issue 15)."""
+    """`--latent-mode`, else the one `--compat` (or the model's encoding) brings (`latent_mode_for`)."""
     if args.latent_mode is not None:
         return args.latent_mode
-    return "sample" if _compat(args) == "neural-gaffer" else "mode"
+    return _overridden(args).latent_mode
 
 
 def _runtime(args: argparse.Namespace) -> RuntimeConfig:

@@ -13,9 +13,8 @@ from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import (
     _compat,
     _device,
-    _load_model,
+    _load_pipeline,
     _object_fraction,
-    _runtime,
     _sampling,
 )
 from gaffer_diffusion.cli._flag_checks import _check_model_args, _check_sampling_args
@@ -163,11 +162,8 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
     )
     _check_envmaps(pairs, args.sanitize)  # before the model loads
     perceptual = _perceptual_arg(args)
-    from gaffer_diffusion.pipelines import RelightPipeline
-
     _device(args)  # a CUDA device torch cannot use is refused before the weights load
-    model = _load_model(args.checkpoint, args.base_model)
-    pipe = RelightPipeline(model, _runtime(args))
+    pipe = _load_pipeline(args)
     config = EvaluationConfig(
         sampling=_sampling(args),
         seed=args.seed,

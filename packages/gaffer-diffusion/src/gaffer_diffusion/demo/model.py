@@ -1,95 +1,78 @@
-"""The demo's model: `load_model` (a checkpoint in our format, or gaffer-tiny) and `sampling_for`
-(the given DDIM settings, else the model's suggestion, else the paper's)."""
+"""The demo's model: `load_model` (`load_pipeline` with the demo's messages) and `sampling_for` (the
+model's own sampling, `RelightPipeline.default_sampling`, with the values given)."""
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
-from gaffer_diffusion import pretrained
 from gaffer_diffusion.conditioning import CompatMode
-from gaffer_diffusion.demo.config import DEFAULT_GUIDANCE, DEFAULT_STEPS
-from gaffer_diffusion.errors import CheckpointNotFoundError, ConfigError
-from gaffer_diffusion.loading import MANIFEST_NAME, load_pretrained
 from gaffer_diffusion.models.model import NeuralGafferModel
-from gaffer_diffusion.pipelines import SamplingConfig
-
-logger = logging.getLogger("gaffer_diffusion.demo")  # the name log lines carried before the split
+from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig, load_pipeline
+from gaffer_diffusion.suggested import DefaultSampling
 
 
 @dataclass(frozen=True, kw_only=True)
 class LoadedModel:
-    """A model and where it came from.
+    """A loaded pipeline and the label reports give it.
 
     Attributes:
-        model: the networks.
-        name: a label for reports ("gaffer-tiny", or the checkpoint's config name).
-        source: the folder the weights were read from.
-        suggested_steps: the denoising steps the model was evaluated with, if known.
-        suggested_guidance: the guidance scale the model was evaluated with, if known.
-        suggested_average: the samples averaged per image it was evaluated with, if known.
-        suggested_mirror: whether it was evaluated with mirror averaging, if known.
-        suggested_compat: the lighting encoding it was trained with, if known.
-        suggested_object_fraction: the object framing it was trained with, if known.
+        pipeline: the pipeline, with the model's own sampling (`default_sampling`).
+        name: a label for reports ("gaffer-tiny", the checkpoint's config name, or the app's label).
     """
 
-    model: NeuralGafferModel
+    pipeline: RelightPipeline
     name: str
-    source: Path
-    suggested_steps: int | None = None
-    suggested_guidance: float | None = None
-    suggested_average: int | None = None
-    suggested_mirror: bool | None = None
-    suggested_compat: CompatMode | None = None
-    suggested_object_fraction: float | None = None
+
+    @property
+    def model(self) -> NeuralGafferModel:
+        """The networks."""
+        return self.pipeline.model
+
+    @property
+    def source(self) -> Path | None:
+        """The folder the weights were read from (None: built in memory)."""
+        return self.pipeline.source
+
+    @property
+    def default_sampling(self) -> DefaultSampling:
+        """How the model is meant to be sampled (read once from its folder)."""
+        return self.pipeline.default_sampling
 
 
-def load_model(checkpoint: Path | None, *, flag: str = "--checkpoint") -> LoadedModel:
-    """Load `checkpoint` (our format), or gaffer-tiny when it is None (and say so in the log).
+def load_model(
+    checkpoint: Path | None,
+    *,
+    flag: str = "--checkpoint",
+    base_model: Path | None = None,
+    runtime: RuntimeConfig | None = None,
+    name: str | None = None,
+) -> LoadedModel:
+    """Load `checkpoint` (our format, or the authors' with `base_model`), or gaffer-tiny when it is
+    None (and say so in the log); see `gaffer_diffusion.load_pipeline`.
 
     Args:
         checkpoint: a folder written by `save_pretrained` (e.g. `gaffer-diffusion init-random`, or
             training's `final/`); None for the shipped gaffer-tiny.
         flag: the argument's name in error messages.
+        base_model: the Zero-1-to-3 XL folder of the authors' release (the app's picker); without
+            it only our format loads.
+        runtime: device and precision (None: float32 on the CPU).
+        name: the label (None: "gaffer-tiny", or the model config's name).
 
     Raises:
         CheckpointNotFoundError: `checkpoint` does not exist, or gaffer-tiny's weights are missing
             (the message names the file looked for).
-        ConfigError: `checkpoint` is not in our format (the authors' release needs `--base-model`,
-            which `gaffer-diffusion relight` and `evaluate` take).
+        ConfigError: `checkpoint` is not in our format and no `base_model` is given.
     """
-    if checkpoint is None:
-        return _load_gaffer_tiny(flag)
-    path = Path(checkpoint).expanduser()
-    if not path.exists():
-        raise CheckpointNotFoundError(
-            f"the model folder given as `{flag}`",
-            [path],
-            f"Pass an existing model folder as `{flag} DIR` (one with {MANIFEST_NAME}, e.g. from "
-            f"`gaffer-diffusion init-random --out DIR`), or leave `{flag}` out to use gaffer-tiny.",
-        )
-    if not (path / MANIFEST_NAME).is_file():
-        raise ConfigError(
-            f"`{flag}` {path} is not a gaffer-diffusion model folder (no {MANIFEST_NAME}). The demo "
-            "reads our format only; relight with the authors' release through `gaffer-diffusion "
-            "relight --checkpoint checkpoint-80000/ --base-model DIR`."
-        )
-    model = load_pretrained(path).model
-    from gaffer_diffusion.suggested import PAPER_SUGGESTION, read_suggested_sampling
-
-    own = read_suggested_sampling(path)  # the sampling its folder records (training's, on export)
-    if own is PAPER_SUGGESTION:
-        return LoadedModel(model=model, name=model.config.name, source=path)
-    return LoadedModel(
-        model=model,
-        name=model.config.name,
-        source=path,
-        suggested_steps=own.num_inference_steps,
-        suggested_guidance=own.guidance_scale,
-        suggested_average=own.average_samples,
-        suggested_mirror=own.mirror_average,
-        suggested_compat=own.compat,
-        suggested_object_fraction=own.object_fraction,
+    pipe = load_pipeline(
+        checkpoint,
+        base_model,
+        runtime=runtime,
+        flag=flag,
+        base_model_flag=None if base_model is None else "base_model",
     )
+    if name is None:
+        name = "gaffer-tiny" if checkpoint is None else pipe.model.config.name
+    return LoadedModel(pipeline=pipe, name=name)
 
 
 def sampling_for(
@@ -98,54 +81,24 @@ def sampling_for(
     guidance_scale: float | None,
     average_samples: int | None = None,
     mirror_average: bool | None = None,
+    compat: CompatMode | None = None,
 ) -> SamplingConfig:
-    """DDIM settings: the given values, else the model's suggestion, else the paper's (50, 3).
+    """The model's own sampling (`default_sampling`; the paper's 50 steps, guidance 3 for a model
+    that records none) with every value that is given instead; the latent mode is the one the
+    encoding brings (`latent_mode_for`).
 
     Example:
+        >>> from gaffer_diffusion import RelightPipeline
         >>> from gaffer_diffusion.testing import tiny_model
-        >>> m = LoadedModel(model=tiny_model(), name="x", source=Path("."), suggested_steps=20)
-        >>> s = sampling_for(m, None, None)
+        >>> m = LoadedModel(pipeline=RelightPipeline(tiny_model()), name="x")
+        >>> s = sampling_for(m, 20, None)
         >>> s.num_inference_steps, s.guidance_scale
         (20, 3.0)
     """
-    steps = (
-        num_inference_steps
-        if num_inference_steps is not None
-        else loaded.suggested_steps or DEFAULT_STEPS
-    )
-    if guidance_scale is None:
-        guidance_scale = (
-            DEFAULT_GUIDANCE if loaded.suggested_guidance is None else loaded.suggested_guidance
-        )
-    average = average_samples if average_samples is not None else loaded.suggested_average or 1
-    if mirror_average is None:
-        mirror_average = bool(loaded.suggested_mirror)
-    return SamplingConfig(
-        num_inference_steps=steps,
+    return loaded.default_sampling.override(
+        num_inference_steps=num_inference_steps,
         guidance_scale=guidance_scale,
-        average_samples=average,
+        average_samples=average_samples,
         mirror_average=mirror_average,
-    )
-
-
-def _load_gaffer_tiny(flag: str) -> LoadedModel:
-    path = Path(pretrained.gaffer_tiny_path())
-    if not (path / MANIFEST_NAME).is_file():
-        raise CheckpointNotFoundError(
-            "the gaffer-tiny weights",
-            [path / MANIFEST_NAME],
-            "gaffer-tiny ships inside the gaffer-diffusion package: reinstall it (`pip install "
-            f"--force-reinstall gaffer-diffusion`), or pass a model folder as `{flag} DIR`.",
-        )
-    logger.info("no `%s` given: using gaffer-tiny, the shipped 128 px model (%s)", flag, path)
-    return LoadedModel(
-        model=pretrained.load_gaffer_tiny().model,
-        name="gaffer-tiny",
-        source=path,
-        suggested_steps=pretrained.GAFFER_TINY_STEPS,
-        suggested_guidance=pretrained.GAFFER_TINY_GUIDANCE,
-        suggested_average=pretrained.GAFFER_TINY_AVERAGE_SAMPLES,
-        suggested_mirror=pretrained.GAFFER_TINY_MIRROR_AVERAGE,
-        suggested_compat=pretrained.GAFFER_TINY_COMPAT,  # type: ignore[arg-type]
-        suggested_object_fraction=pretrained.GAFFER_TINY_OBJECT_FRACTION,
-    )
+        compat=compat,
+    ).sampling_config()

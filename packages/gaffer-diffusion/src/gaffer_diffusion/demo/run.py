@@ -19,7 +19,7 @@ from gaffer_diffusion.demo.sampling import _sample
 from gaffer_diffusion.demo.writing import _write_images, _write_text
 from gaffer_diffusion.errors import ConfigError, MetricUnavailableError
 from gaffer_diffusion.metrics import ImageScores, evaluate_images, load_perceptual
-from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig
+from gaffer_diffusion.pipelines import RuntimeConfig
 from gaffer_diffusion.report import render_html
 
 logger = logging.getLogger("gaffer_diffusion.demo")  # the name log lines carried before the split
@@ -109,23 +109,24 @@ def run_demo(
     """
     t_start = time.perf_counter()
     out = _check_out(config.out)
-    loaded = load_model(config.checkpoint)
-    pipe = RelightPipeline(loaded.model, RuntimeConfig(device=config.device))
+    loaded = load_model(config.checkpoint, runtime=RuntimeConfig(device=config.device))
+    pipe = loaded.pipeline
     t_loaded = time.perf_counter()
     size = loaded.model.config.resolution
+    compat = config.compat or loaded.default_sampling.compat
     sampling = sampling_for(
         loaded,
         config.num_inference_steps,
         config.guidance_scale,
         config.average_samples,
         config.mirror_average,
+        compat,
     )
 
     example_root = (
         Path(config.example) if config.example is not None else pretrained.example_dataset_path()
     )
-    compat = config.compat or loaded.suggested_compat or "neural-gaffer"
-    fraction = config.object_fraction or loaded.suggested_object_fraction
+    fraction = config.object_fraction or loaded.default_sampling.object_fraction
     example = _read_example(example_root, config.input_lighting, size, fraction)
     jobs = _lightings(example, config, size, compat)
     t_prepared = time.perf_counter()

@@ -10,7 +10,7 @@ from gaffer_diffusion._json import json_dumps
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.metrics import MetricsReport, closer_than
 from gaffer_diffusion.pipelines import SamplingConfig
-from gaffer_diffusion.suggested import SuggestedSampling
+from gaffer_diffusion.suggested import DefaultSampling
 from gaffer_envmap.compat_mode import CompatArg
 
 InputLighting = int | Literal["area"]
@@ -210,19 +210,15 @@ class DatasetEvaluation:
 
 
 def suggested_evaluation_config(
-    suggested: SuggestedSampling, *, seed: int = 0, batch_size: int = 8
+    suggested: DefaultSampling, *, seed: int = 0, batch_size: int = 8
 ) -> EvaluationConfig:
-    """The evaluation a model's own suggested sampling asks for (`read_suggested_sampling`): its
-    steps, guidance, averaging, lighting encoding and framing, the input's background kept, as
-    `gaffer-diffusion evaluate` scores a model when no sampling flag overrides it."""
+    """The evaluation a model's own sampling asks for (`RelightPipeline.default_sampling`): its
+    steps, guidance, averaging, lighting encoding (and the latent mode it brings) and framing, the
+    input's background kept, as `gaffer-diffusion evaluate` scores a model when no sampling flag
+    overrides it."""
     fraction = suggested.object_fraction
     return EvaluationConfig(
-        sampling=SamplingConfig(
-            num_inference_steps=suggested.num_inference_steps,
-            guidance_scale=float(suggested.guidance_scale),
-            average_samples=suggested.average_samples,
-            mirror_average=suggested.mirror_average,
-        ),
+        sampling=suggested.sampling_config(),
         seed=seed,
         batch_size=batch_size,
         compat=suggested.compat,

@@ -89,27 +89,13 @@ def load_pipeline(
         if (root / MANIFEST_NAME).is_file():
             model = load_pretrained(root, strict=strict).model
         elif base_model is None:
-            raise ConfigError(_not_ours(root, flag, base_model_flag))
+            raise ConfigError(pretrained.not_our_folder_message(root, flag, base_model_flag))
         else:
             result = load_authors_release(root, base_model, strict=strict)
             logger.info("%s", result.report.summary())
             model = result.model
     return RelightPipeline(
         model, runtime, default_sampling=read_default_sampling(root), source=root
-    )
-
-
-def _not_ours(root: Path, flag: str, base_model_flag: str | None) -> str:
-    what = f"`{flag}` {root} is not a gaffer-diffusion model folder (no {MANIFEST_NAME})"
-    if base_model_flag is None:
-        return (
-            f"{what}. Only our format loads here; relight with the authors' release through "
-            "`gaffer-diffusion relight --checkpoint checkpoint-80000/ --base-model DIR`."
-        )
-    return (
-        f"{what}, so it is taken as the authors' release, which needs `{base_model_flag} DIR` (a "
-        "local Zero-1-to-3 XL diffusers folder with vae/, image_encoder/, scheduler/, "
-        "unet/config.json)."
     )
 
 

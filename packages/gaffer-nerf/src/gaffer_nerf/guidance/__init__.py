@@ -1,12 +1,7 @@
 """The 2D relighting model as a 3D prior: relit views, guidance targets from t*, SDS, perceptual loss."""
 
 from gaffer_nerf.guidance.diffusion import DiffusionGuide, ViewConditions, t_star
-from gaffer_nerf.guidance.model import (
-    RelightingModel,
-    load_relighting_model,
-    smoke_model,
-    suggested_sampling,
-)
+from gaffer_nerf.guidance.model import RelightingModel, load_relighting_model, smoke_model
 from gaffer_nerf.guidance.perceptual import (
     PerceptualLoss,
     PerceptualUnavailableWarning,
@@ -23,7 +18,6 @@ __all__ = [
     "load_perceptual_loss",
     "load_relighting_model",
     "smoke_model",
-    "suggested_sampling",
     "t_star",
     "unavailable_perceptual",
 ]

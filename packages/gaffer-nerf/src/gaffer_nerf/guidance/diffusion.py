@@ -25,6 +25,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from gaffer_diffusion import (
+    DefaultSampling,
     EncodedConditions,
     LightingMaps,
     RelightingConditions,
@@ -36,7 +37,7 @@ from gaffer_diffusion import (
 )
 from gaffer_diffusion.models.model import vae_decode, vae_posterior
 from gaffer_envmap import EnvironmentMap
-from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, ModelSampling, Stage2Config
+from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.guidance.framing import ViewFraming, frame_views
 
@@ -134,7 +135,8 @@ class DiffusionGuide:
         pipeline: a `RelightPipeline` (real weights, or the random `guidance.model.smoke_model()`).
         sampling: steps, guidance scale, averaging, encoding, batch size and seeds; None fields
             take the model's suggestion.
-        suggested: the model's own sampling; None: `suggested_sampling(pipeline.model)`.
+        suggested: the model's own sampling; None: `pipeline.default_sampling` (read once from its
+            folder by `gaffer_diffusion.load_pipeline`).
 
     Attributes:
         requested: `sampling` as given.
@@ -148,14 +150,12 @@ class DiffusionGuide:
         self,
         pipeline: RelightPipeline,
         sampling: DiffusionSamplingConfig | None = None,
-        suggested: ModelSampling | None = None,
+        suggested: DefaultSampling | None = None,
     ) -> None:
-        from gaffer_nerf.guidance.model import suggested_sampling
-
         self.pipeline = pipeline
         self.model = pipeline.model
         self.requested = sampling or DiffusionSamplingConfig()
-        self.suggested = suggested or suggested_sampling(self.model)
+        self.suggested = suggested or pipeline.default_sampling
         self.sampling = self.requested.resolved(self.suggested)
         for module in (self.model.unet, self.model.vae, self.model.image_encoder):
             module.requires_grad_(False)

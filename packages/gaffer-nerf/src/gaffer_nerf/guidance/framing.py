@@ -1,7 +1,7 @@
 """Object-centred framing of the training views, as the relighting model was trained to see them.
 
 A model trained on object-centred square crops (gaffer-tiny: the object's longer side spans 75% of
-the square, `gaffer_diffusion.pretrained.GAFFER_TINY_OBJECT_FRACTION`) relights a whole multi-view
+the square, the `object_fraction` of its `RelightPipeline.default_sampling`) relights a whole multi-view
 frame, where the object may span 40% of it, much worse than its own crops (issue 20: the full
 method lost to SDS until the views were framed). So every path that shows a view to the model
 (encoding the inputs, Stage 1's relit views, Stage 2's renders and SDS) crops it with the same
