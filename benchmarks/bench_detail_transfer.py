@@ -214,7 +214,8 @@ def figure(result: dict[str, Any], meta: dict[str, Any]) -> Any:
     )
     axes[2].set_title("paste-back cost (ms per 512 px image)")
     fig.suptitle(
-        f"gaffer-tiny ({result['model_resolution']} px) to {RESOLUTION} px: "
+        f"{result['model']['name']} {result['model']['version']} ({result['model_resolution']} px) "
+        f"to {RESOLUTION} px: "
         f"{len(result['pairs'])} held-out pairs; {common.short_device(meta)}",
         fontsize=10,
     )

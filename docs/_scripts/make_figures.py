@@ -580,9 +580,18 @@ def bench_diffusion(out: Path) -> str:
             )
         obj = base.get("unrelit_input_object_psnr")
         obj_al = base.get("unrelit_input_object_psnr_aligned")
+        # the model the record measured (issue 34): release and UNet weights' sha256, when recorded
+        model = d.get("model")
+        if isinstance(model, dict):
+            unet = next((v for k, v in model["weights_sha256"].items() if "/unet/" in k), "")
+            measured = f"{model['name']} {model['version']} (UNet sha256 {unet[:12]})"
+            if not model.get("shipped"):
+                measured += ", not the shipped model"
+        else:
+            measured = f"{cfg['model']} (weights not recorded: an older model)"
         text += (
             "\n### gaffer-tiny: relighting quality against sampling time\n\n"
-            f"**Measured on:** {_machine_line(d['machine'])}; {cfg['model']}, {cfg['data']}, "
+            f"**Measured on:** {_machine_line(d['machine'])}; {measured}, {cfg['data']}, "
             f"{cfg['pairs']} pairs, guidance {cfg['guidance_scale']:g}, against ground-truth renders. "
             f"Baselines over the object mask: the unrelit input {db(obj)} dB, the input "
             f"channel-aligned to the target {db(obj_al)} dB (full frame: "
