@@ -454,7 +454,7 @@ def _l1_weights(l1: float) -> dict[str, float]:
     return {"l1_weight_initial": l1, "l1_weight_rest": l1 / 2}
 
 
-def _run_l1(spec: "Sweep", quick: bool) -> dict[str, Any]:
+def _run_l1(spec: "Sweep", quick: bool, names: Sequence[str]) -> dict[str, Any]:
     """Every object of both validation splits fitted with the footprint sizing rule (17 fitted train
     views, early stopping on 3 others, 300 iterations of 1024 rays) per candidate and fit seed, scored
     on the 5 test views under the input lighting; and, recorded beside (not part of the rule), the
@@ -465,7 +465,7 @@ def _run_l1(spec: "Sweep", quick: bool) -> dict[str, Any]:
     from gaffer_nerf.evaluate import evaluate_field
     from gaffer_nerf.testing import orbit_cameras, quick_fit_config, scene_envmap, sphere_viewset
 
-    values = [spec.candidates[n]["l1_weight_initial"] for n in spec.candidates]
+    values = [spec.candidates[n]["l1_weight_initial"] for n in names]
     fits = []
     for split in (real.VALIDATION,) if quick else (real.VALIDATION, real.VALIDATION_B):
         for folder in sizing.real_object_folders(split, quick):
@@ -968,7 +968,7 @@ def cmd_run(spec: Sweep, args: argparse.Namespace) -> int:
         result["config"]["settings"] = {n: dict(spec.candidates[n]) for n in names}
         result["config"]["selection_rule"] = spec.rule.text
     else:
-        result = spec.run(spec, args.quick)
+        result = spec.run(spec, args.quick, names)
         result["config"]["quick"] = args.quick
     name = spec.name + ("-quick" if args.quick else "")
     payload: dict[str, Any] = {"name": name, "machine": meta, **result}
