@@ -592,6 +592,10 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             "target_lightings_are": "gaffer-tiny's test-split HDRIs (model card)",
             "model": loaded.name,
             "model_source": str(loaded.source),
+            # which weights (issue 34): release, shipped or not, sha256 of every weights file
+            "model_provenance": common.model_provenance(Path(str(loaded.source)))
+            if Path(str(loaded.source)).joinpath("gaffer_model.json").is_file()
+            else None,
             "sampling": {
                 "num_inference_steps": s.num_inference_steps,
                 "guidance_scale": s.guidance_scale,
