@@ -8,11 +8,13 @@ import pytest
 import torch
 from PIL import Image
 
+from gaffer_envmap import errors as envmap_errors
 from gaffer_envmap.errors import EnvmapWriteError
+from gaffer_envmap.writers import write_gif  # gaffer_nerf.write_gif's new home (one writer)
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.fit import FitResult
 from gaffer_nerf.testing import orbit_cameras
-from gaffer_nerf.video import GIF_NAME, orbit_path, render_orbit, write_gif
+from gaffer_nerf.video import GIF_NAME, orbit_path, render_orbit
 
 
 def _project(cams, point: torch.Tensor) -> torch.Tensor:
@@ -79,14 +81,14 @@ def test_render_orbit_writes_frames_and_a_gif(fitted: FitResult, tmp_path: Path)
 def test_write_gif_is_atomic_and_validates(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     path = tmp_path / "a.gif"
     frames = [np.full((6, 8, 3), v, np.uint8) for v in (0, 120, 250)]
-    write_gif(frames, path, fps=10.0)
+    write_gif(path, frames, fps=10.0)
     before = path.read_bytes()
     with Image.open(path) as gif:
         assert gif.n_frames == 3
-    with pytest.raises(ShapeError, match="frames"):
-        write_gif([frames[0], np.zeros((6, 7, 3), np.uint8)], path)
-    with pytest.raises(ConfigError, match="empty"):
-        write_gif([], path)
+    with pytest.raises(envmap_errors.ShapeError, match="frames"):
+        write_gif(path, [frames[0], np.zeros((6, 7, 3), np.uint8)], fps=12.0)
+    with pytest.raises(envmap_errors.ParameterError, match="empty"):
+        write_gif(path, [], fps=12.0)
 
     def crash(self: Image.Image, fp: Path, *args: object, **kwargs: object) -> None:
         Path(fp).write_bytes(b"GIF89a half")  # a partial file, then the writer dies
@@ -94,5 +96,5 @@ def test_write_gif_is_atomic_and_validates(tmp_path: Path, monkeypatch: pytest.M
 
     monkeypatch.setattr(Image.Image, "save", crash)
     with pytest.raises(EnvmapWriteError, match="disk full"):
-        write_gif(frames, path)
+        write_gif(path, frames, fps=12.0)
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["a.gif"]

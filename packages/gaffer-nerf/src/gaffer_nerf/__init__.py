@@ -77,7 +77,7 @@ if TYPE_CHECKING:
         render_rays,
     )
     from gaffer_nerf.sizing import GridSizing, choose_grid_sizing
-    from gaffer_nerf.video import OrbitVideo, orbit_path, render_orbit, write_gif
+    from gaffer_nerf.video import OrbitVideo, orbit_path, render_orbit
 
 _EXPORTS = {
     "Cameras": "gaffer_nerf.cameras",
@@ -142,7 +142,6 @@ _EXPORTS = {
     "OrbitVideo": "gaffer_nerf.video",
     "orbit_path": "gaffer_nerf.video",
     "render_orbit": "gaffer_nerf.video",
-    "write_gif": "gaffer_nerf.video",
 }
 """Public name -> the module that defines it."""
 
@@ -224,5 +223,4 @@ __all__ = [
     "render_views",
     "save_field",
     "t_star",
-    "write_gif",
 ]

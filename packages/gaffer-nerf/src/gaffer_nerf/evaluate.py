@@ -18,6 +18,7 @@ from torch import Tensor
 
 from gaffer_diffusion.metrics import MetricsReport, PerceptualMetric, evaluate_images
 from gaffer_envmap.atomic import atomic_files
+from gaffer_envmap.writers import write_png
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.data.transforms import ViewSet
 from gaffer_nerf.errors import ShapeError
@@ -118,6 +119,9 @@ def write_images(
 ) -> list[Path]:
     """Write `[V, 3, H, W]` images in [0, 1] as 8-bit PNGs `folder/<name>.png`, all or none.
 
+    Quantised by `gaffer_envmap.writers` (nearest level, ties to even). gaffer-nerf used to round half
+    up: a value exactly halfway up to an odd level (x * 255 = 2k + 0.5) is now saved one level lower.
+
     The set is staged in a hidden folder inside `folder` and renamed into place at the end
     (`gaffer_envmap.atomic.atomic_files`), so an interrupted run (even kill -9) leaves no part of a set
     under the final names and an earlier run's files as they were (issue 17).
@@ -125,8 +129,7 @@ def write_images(
     folder = Path(folder)
     with atomic_files(folder) as stage:
         for img, name in zip(images, names, strict=True):
-            arr = (img.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
-            Image.fromarray(arr, "RGB").save(stage / f"{name}.png")
+            write_png(stage / f"{name}.png", img.permute(1, 2, 0))
     return [folder / f"{name}.png" for name in names]
 
 

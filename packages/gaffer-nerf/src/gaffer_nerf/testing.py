@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
 from gaffer_envmap import EnvironmentMap, orbit_w2c_blender, write_envmap
 from gaffer_envmap.sh import irradiance
 from gaffer_envmap.testing import smooth_random_map
+from gaffer_envmap.writers import quantize_float, write_png
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.configs import FitConfig, fit_preset
 from gaffer_nerf.data.transforms import BLENDER_TO_OPENCV, ViewSet
@@ -136,8 +136,8 @@ def _srgb(x: np.ndarray) -> np.ndarray:
 
 
 def quantize8(x: np.ndarray) -> np.ndarray:
-    """Round to 8 bit and back, as a PNG round trip does."""
-    return np.round(np.clip(x, 0, 1) * 255.0) / 255.0
+    """Round to 8 bit and back, as a PNG round trip does (`gaffer_envmap.writers.quantize_float`)."""
+    return quantize_float(x)
 
 
 def sphere_viewset(
@@ -198,9 +198,7 @@ def write_sphere_scene(
             for v in range(cams.num_views):
                 rgba = np.concatenate([rgb[v], alpha[v][..., None]], axis=-1)
                 vi = first_index[split] + v
-                Image.fromarray(np.round(rgba * 255).astype(np.uint8), "RGBA").save(
-                    root / "lit" / f"{vi:03d}_{k:03d}.png"
-                )
+                write_png(root / "lit" / f"{vi:03d}_{k:03d}.png", rgba)
         for v in range(cams.num_views):
             vi = first_index[split] + v
             c2w_blender = cams.c2w_opencv[v].double().numpy() @ BLENDER_TO_OPENCV

@@ -5,8 +5,9 @@ horizontal circle (world z up) whose radius, elevation and intrinsics follow a r
 median camera distance and elevation about the centre), starting at the first reference camera's
 azimuth; `render_orbit` renders them and writes `frame_000.png`, ... and `orbit.gif`, staged and
 renamed into place together (`gaffer_envmap.atomic.atomic_files`), so an interrupted run never leaves
-a truncated file, or part of an orbit, under a final name. GIF only (Pillow): an MP4 would need
-ffmpeg or PyAV, which gaffer-nerf does not depend on.
+a truncated file, or part of an orbit, under a final name. The PNGs and the GIF are written by
+`gaffer_envmap.writers`, gaffer's one writer (its rounding: nearest level, ties to even). GIF only: an
+MP4 would need ffmpeg, PyAV or OpenCV, which gaffer-nerf does not depend on.
 """
 
 import math
@@ -17,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import torch
 from jaxtyping import Float
-from PIL import Image
 from torch import Tensor
 from tqdm.auto import tqdm
 
 from gaffer_envmap import orbit_w2c_blender
-from gaffer_envmap.atomic import atomic_files, atomic_write
+from gaffer_envmap.atomic import atomic_files
+from gaffer_envmap.writers import quantize, write_gif, write_png
 from gaffer_nerf.cameras import Cameras
 from gaffer_nerf.errors import ConfigError, ShapeError
 from gaffer_nerf.evaluate import render_views
@@ -140,52 +141,10 @@ def render_orbit(
     # the frames and the GIF are staged and renamed into place together: all or none (issue 17)
     with atomic_files(out) as stage:
         for k in tqdm(range(cameras.num_views), disable=not progress, desc="orbit", leave=False):
-            frame = _to_uint8(render_views(field, cameras.select([k]))[0])  # [H, W, 3]
+            frame = quantize(render_views(field, cameras.select([k]))[0].permute(1, 2, 0))
             name = f"frame_{k:03d}.png"
-            Image.fromarray(frame, "RGB").save(stage / name)
+            write_png(stage / name, frame)  # [H, W, 3]
             paths.append(out / name)
             frames.append(frame)
-        write_gif(frames, stage / GIF_NAME, fps=fps)
+        write_gif(stage / GIF_NAME, frames, fps=fps)
     return OrbitVideo(frames=tuple(paths), gif=out / GIF_NAME, fps=fps)
-
-
-def write_gif(frames: Sequence[np.ndarray], path: str | Path, *, fps: float = 12.0) -> Path:
-    """Atomically write `[H, W, 3]` uint8 frames as a looping GIF; returns `path`.
-
-    GIF stores frame delays in 1/100 s, so `fps` is rounded to that (12 fps plays at 12.5). Pillow
-    merges identical consecutive frames into one longer frame.
-
-    Raises:
-        ConfigError: no frames, or a non-positive `fps`.
-        ShapeError: frames of different shapes or not `[H, W, 3]`.
-    """
-    if not frames:
-        raise ConfigError("`frames` is empty; nothing to animate.")
-    if not (math.isfinite(fps) and fps > 0):
-        raise ConfigError(f"`fps` is {fps!r}; expected > 0.")
-    shape = tuple(np.shape(frames[0]))
-    for f in frames:
-        if tuple(np.shape(f)) != shape or len(shape) != 3 or shape[2] != 3:
-            raise ShapeError("frames", tuple(np.shape(f)), f"[H, W, 3] like the first, {shape}")
-    images = [Image.fromarray(np.asarray(f, dtype=np.uint8), "RGB") for f in frames]
-
-    def save(tmp: Path) -> None:
-        # disposal 2 and optimize off: every frame is a full image, none is merged into another
-        images[0].save(
-            tmp,
-            format="GIF",
-            save_all=True,
-            append_images=images[1:],
-            duration=max(1, round(1000 / fps)),
-            loop=0,
-            disposal=2,
-            optimize=False,
-        )
-
-    atomic_write(Path(path), save)
-    return Path(path)
-
-
-def _to_uint8(image: Float[Tensor, "3 H W"]) -> np.ndarray:
-    """`[3, H, W]` in [0, 1] -> `[H, W, 3]` uint8 (round half up, as `evaluate.write_images`)."""
-    return (image.clamp(0, 1).permute(1, 2, 0).numpy() * 255.0 + 0.5).astype(np.uint8)
