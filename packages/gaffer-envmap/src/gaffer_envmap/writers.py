@@ -108,12 +108,26 @@ def _refuse_non_finite(bad: int) -> None:
         )
 
 
+def _as_array(values: "np.ndarray | torch.Tensor") -> np.ndarray:
+    """A numpy view or copy of `values`; half-precision floats (which numpy cannot scale to 16 bits
+    exactly, and bfloat16 tensors, which numpy cannot hold) become float32 first."""
+    if _is_tensor(values):
+        t: Any = values
+        t = t.detach()
+        if t.is_floating_point() and t.element_size() < 4:
+            t = t.float()
+        return t.cpu().numpy()
+    arr = np.asarray(values)
+    return arr.astype(np.float32) if arr.dtype == np.float16 else arr
+
+
 def quantize(values: "np.ndarray | torch.Tensor", bits: int = 8) -> np.ndarray:
     """Floats in [0, 1] -> uint8 (or uint16) levels: clipped, scaled, rounded to nearest, ties to even.
 
     Args:
         values: a float array or torch tensor of any shape and layout (a tensor is detached and
-            copied to the CPU); values outside [0, 1] are clipped.
+            copied to the CPU; half precision is scaled in float32); values outside [0, 1] are
+            clipped.
         bits: 8 (levels 0..255, uint8) or 16 (0..65535, uint16).
 
     Returns:
@@ -129,9 +143,7 @@ def quantize(values: "np.ndarray | torch.Tensor", bits: int = 8) -> np.ndarray:
         [0, 128, 2, 2, 255]
     """
     top = _levels(bits)
-    if _is_tensor(values):
-        values = values.detach().cpu().numpy()  # type: ignore[union-attr]
-    arr = np.asarray(values)
+    arr = _as_array(values)
     if not np.issubdtype(arr.dtype, np.floating):
         raise ShapeError(
             "image",
@@ -172,7 +184,7 @@ def quantize_float(
 
 def _png_levels(image: "np.ndarray | torch.Tensor", bits: int | None) -> np.ndarray:
     """The stored levels of `image`: uint8 / uint16 as they are, floats through `quantize`."""
-    arr = np.asarray(image.detach().cpu().numpy() if _is_tensor(image) else image)  # type: ignore[union-attr]
+    arr = _as_array(image)
     if bits not in (None, 8, 16):
         raise ParameterError(f"`bits` is {bits!r}; pass 8 or 16 (None: from the dtype).")
     if arr.dtype in (np.uint8, np.uint16):
@@ -299,7 +311,7 @@ def _frames(frames: Sequence[Any]) -> list[np.ndarray]:
     """The frames as `[H, W, 3]` uint8 arrays, after checking there are some, all of one shape."""
     if len(frames) == 0:
         raise ParameterError("`frames` is empty; nothing to animate.")
-    arrays = [np.asarray(f.detach().cpu().numpy() if _is_tensor(f) else f) for f in frames]
+    arrays = [_as_array(f) for f in frames]
     shape = arrays[0].shape
     for a in arrays:
         if a.shape != shape or a.ndim != 3 or a.shape[2] not in (3, 4) or 0 in a.shape:
