@@ -88,6 +88,15 @@ def test_tensors_quantize_like_arrays_and_quantize_float_stays_a_tensor() -> Non
         quantize_float(torch.tensor([float("nan")]))
 
 
+def test_half_precision_is_scaled_in_float32() -> None:
+    x = torch.linspace(0, 1, 1001)
+    want = quantize(x.half().float())  # the half values themselves, rounded without fp16 arithmetic
+    np.testing.assert_array_equal(quantize(x.half()), want)
+    np.testing.assert_array_equal(quantize(x.half().numpy()), want)
+    np.testing.assert_array_equal(quantize(x.bfloat16()), quantize(x.bfloat16().float()))
+    assert quantize_float(x.half()).dtype == torch.float16  # a tensor keeps its dtype
+
+
 # ------------------------------------------------------------------------------------------------
 # PNG
 

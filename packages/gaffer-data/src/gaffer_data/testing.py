@@ -190,9 +190,9 @@ def write_fake_object(
 ) -> Path:
     """Write one object's folder in gaffer-data's layout without Blender; returns its manifest path.
 
-    Writes each PNG (`PIL.Image.fromarray` of the array, default settings), then `cameras.npz`
+    Writes each PNG (`gaffer_envmap.writers.write_png` of the array), then `cameras.npz`
     (`w2c_blender`, `c2w_opencv`, `intrinsics`), then `manifest.json` (compact JSON from
-    `gaffer_data.dataset.manifest.object_manifest_json`). Not atomic: tests only.
+    `gaffer_data.dataset.manifest.object_manifest_json`). Not atomic as a set: tests only.
 
     Args:
         folder: the object's folder, `DATASET/objects/<plan.object_id>` (created).
@@ -211,13 +211,13 @@ def write_fake_object(
     Returns:
         `folder/manifest.json`.
     """
-    from PIL import Image
+    from gaffer_envmap.writers import write_png
 
     folder = Path(folder)
     for rel, pixels in pngs.items():
         path = folder / rel
         path.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(np.asarray(pixels, dtype=np.uint8)).save(path)
+        write_png(path, np.asarray(pixels, dtype=np.uint8))
     folder.mkdir(parents=True, exist_ok=True)
     with open(folder / "cameras.npz", "wb") as fh:
         np.savez(fh, w2c_blender=w2c_blender, c2w_opencv=c2w_opencv, intrinsics=intrinsics)

@@ -193,10 +193,11 @@ def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
 
 
 def _write_mask(path: Path, alpha: np.ndarray) -> None:
-    from PIL import Image
+    """The alpha as an 8-bit grey PNG, atomically (`gaffer_envmap.writers`: torch-free, one rounding)."""
+    from gaffer_envmap.writers import write_png
 
-    mask = np.clip(np.round(alpha * 255.0), 0, 255).astype(np.uint8)
-    atomic_write(path, lambda tmp: Image.fromarray(mask, mode="L").save(tmp, format="PNG"))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_png(path, alpha)
 
 
 def _read_exr_channels(path: Path) -> dict[str, np.ndarray]:
