@@ -124,3 +124,15 @@ def test_a_hand_edited_generated_block_fails(checker: ModuleType, tmp_path: Path
     assert edited != block
     failures = checker.check_page(_page(tmp_path, f"# x\n\n{edited}\n"))
     assert any("headline differs" in f for f in failures)
+
+
+def test_allowlists_skip_their_numbers_and_fail_when_stale(
+    checker: ModuleType, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    page = _page(tmp_path, "# x\n\nThe sun is a 0.53-degree disc; it took 0.2 s.\n")
+    monkeypatch.setitem(checker.NOT_MEASURED, str(page), {"0.53": "a constant"})
+    monkeypatch.setitem(checker.KNOWN_UNSOURCED, str(page), {"0.2 s": "reported"})
+    assert checker.check_page(page) == []
+    page.write_text("# x\n\nThe sun is a disc; it took 0.2 s.\n")
+    failures = checker.check_page(page)
+    assert len(failures) == 1 and "0.53: listed in NOT_MEASURED" in failures[0]
