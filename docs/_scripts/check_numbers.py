@@ -152,7 +152,12 @@ KNOWN_UNSOURCED: dict[str, dict[str, str]] = {}
 def pages(root: Path = ROOT) -> list[Path]:
     """Every Markdown file whose numbers are checked."""
     found = [root / "README.md", root / "benchmarks" / "README.md"]
-    found += sorted(p for p in (root / "docs").rglob("*.md") if "_build" not in p.parts)
+    # `_generated/` fragments are written from the JSON files at build time; `_build/` is output
+    found += sorted(
+        p
+        for p in (root / "docs").rglob("*.md")
+        if not {"_build", "_generated"} & set(p.relative_to(root).parts)
+    )
     found += sorted((root / "packages").glob("*/README.md"))
     found += sorted((root / "integrations").glob("*/README.md"))
     found += sorted((root / "packages").glob("*/src/*/weights/*/MODEL_CARD.md"))
