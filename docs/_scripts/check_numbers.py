@@ -41,6 +41,13 @@ the shown precision (`15.84` matches 15.8412; `3,519 s` matches 3518.83). Derive
   `rows[3].theirs` vs `rows[3].ours`), never two list entries (per-pair rows) or two files. A text can
   always show the two operands instead.
 
+How strict this is: a number is checked against every leaf of its section's files, so a wrong
+number can still pass when it happens to equal another value there. Measured on random numbers
+(2026-12-06): a 2-decimal dB value in 10-30 passes by chance against the NeRF validation files about 1
+time in 10, a 4-decimal ST-LPIPS almost never, a signed dB difference against a file with many variants
+(nerf_real.json's 12) often; against the model card's summary rows, rarely. Narrow sections and
+specific files keep it useful; it catches a number that went stale, not every typo.
+
 A number written after "about" must still match at its shown precision ("about" tells the reader that
 it was rounded, not that it may differ).
 
