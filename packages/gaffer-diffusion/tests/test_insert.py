@@ -240,7 +240,6 @@ def test_cli_with_an_envmap_and_detail_resize(files, tmp_path) -> None:
         (["--at", "500,10"], "`--at`"),
         (["--at", "100,140", "--height", "400"], "`--height` 141 or less"),
         (["--envmap", "{text}"], "`--envmap`"),
-        (["--shadow", "cycles"], "`--shadow 2d`"),
         (["--envmap", "courtyard", "--key-light", "10,20"], "`--key-light`"),
         (["--key-light", "10,20,-1"], "`--key-light`"),
         (["--fov", "0"], "`--fov`"),
@@ -304,16 +303,24 @@ def test_insert_object_library_result(files) -> None:
     keep = (result.shadow == 1.0) & (result.placed.full_alpha(H, W) == 0)
     assert np.array_equal(result.image[keep], background.rgb_u8[keep])
     assert (result.shadow < 1).any() and torch.isfinite(result.relit_model).all()
-    with pytest.raises(ValueError, match="--shadow 2d"):
-        ins.insert_object(
-            RelightPipeline(model),
-            SamplingConfig(num_inference_steps=1, guidance_scale=1.0),
-            prepared=prepared,
-            background=background,
-            lighting=lighting,
-            placement=placement,
-            config=ins.InsertConfig(shadow="cycles"),
-        )
+    import gaffer_diffusion.insert_shadow_cycles as cyc
+
+    def sample_nothing(*_a: object, **_k: object) -> None:
+        raise AssertionError("sampled before refusing")
+
+    with pytest.MonkeyPatch.context() as mp:  # no bpy: refused before sampling, naming the fallback
+        mp.setattr(cyc, "bpy_available", lambda: False)
+        mp.setattr(ins, "relight_under", sample_nothing)
+        with pytest.raises(ImportError, match="--shadow 2d"):
+            ins.insert_object(
+                RelightPipeline(model),
+                SamplingConfig(num_inference_steps=1, guidance_scale=1.0),
+                prepared=prepared,
+                background=background,
+                lighting=lighting,
+                placement=placement,
+                config=ins.InsertConfig(shadow="cycles"),
+            )
 
 
 def test_the_map_from_a_photo_mirrors_it_at_its_edges() -> None:

@@ -16,7 +16,10 @@ the object with the diffusion model, pastes it, and adds a shadow from a shadow 
    with `Placement.height_px` pixels of height (`place_object`).
 4. **Shadow.** A pixel-height shadow (after Sheng et al., "Controllable Shadow Generation Using Pixel
    Height Maps", ECCV 2022) is cast on the ground plane from the placed mask, away from the dominant
-   light, and multiplied into the background in linear light (`cast_shadow_2d`).
+   light, and multiplied into the background in linear light (`cast_shadow_2d`); or, with
+   `shadow="cycles"`, Blender Cycles' shadow catcher renders the shadow of a proxy inflated from the
+   placed mask under the same map (`insert_shadow_cycles.cast_shadow_cycles`, in a Blender worker
+   process).
 5. **Composite.** The object is alpha-composited over it (`composite`). Pixels away from the object and
    its shadow keep the background's bytes exactly.
 
@@ -27,6 +30,7 @@ ground point under the object's lowest row (a billboard on the ground line, the 
 the ground seen at the foot's row is foreshortened by `(foot row - horizon row) / focal length`.
 """
 
+import time
 from dataclasses import dataclass, field
 from typing import assert_never
 
@@ -36,7 +40,7 @@ from torch import Tensor
 
 from gaffer_diffusion._choices import DetailMode, PrepareCompat, ShadowMode
 from gaffer_diffusion.conditioning import RelightingConditions, lighting_from_envmap
-from gaffer_diffusion.errors import ConfigError, InputValueError
+from gaffer_diffusion.errors import InputValueError
 
 # the geometry, lighting and shadow, importable from here too (documented in insert_geometry)
 from gaffer_diffusion.insert_geometry import LEVEL_CAMERA as LEVEL_CAMERA
@@ -56,6 +60,11 @@ from gaffer_diffusion.insert_geometry import light_from_photo as light_from_phot
 from gaffer_diffusion.insert_geometry import object_extent as object_extent
 from gaffer_diffusion.insert_geometry import place_object as place_object
 from gaffer_diffusion.insert_geometry import resolve_placement as resolve_placement
+from gaffer_diffusion.insert_shadow_cycles import (
+    CyclesShadowConfig,
+    cast_shadow_cycles,
+    require_bpy,
+)
 from gaffer_diffusion.photo import Photo, PreparedPhoto, relit_object
 from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
 
@@ -67,17 +76,20 @@ class InsertConfig:
     """How an object is inserted (besides lighting and placement).
 
     Attributes:
-        shadow: "2d" (pixel-height shadow, default) or "none"; "cycles" is refused (not built yet).
+        shadow: "2d" (pixel-height shadow, default), "cycles" (Blender's shadow catcher, needs bpy)
+            or "none".
         detail: "transfer" (the model's change of shading applied to the full-resolution object
             photo, default) or "resize" (the model's output upsampled).
         compat: the lighting encoding and framing the model expects (`_choices.PrepareCompat`).
         seed: sampling seed.
+        cycles: how `shadow="cycles"` renders (size, samples, denoising, threads).
     """
 
     shadow: ShadowMode = "2d"
     detail: DetailMode = "transfer"
     compat: PrepareCompat = "default"
     seed: int = 0
+    cycles: CyclesShadowConfig = field(default_factory=CyclesShadowConfig)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -92,6 +104,7 @@ class InsertResult:
         lighting: the lighting used (its map is what `--save-envmap` writes).
         light: the light the shadow comes from.
         relit_model: `[3, S, S]` the model's relit crop, sRGB in [0, 1].
+        shadow_seconds: seconds the shadow took (for "cycles": Blender's worker, its start included).
     """
 
     image: np.ndarray
@@ -101,6 +114,7 @@ class InsertResult:
     lighting: InsertLighting
     light: DominantLight
     relit_model: Tensor = field(repr=False)
+    shadow_seconds: float = 0.0
 
 
 def relight_under(
@@ -135,10 +149,13 @@ def insert_object(
     shadow and composite (the module docstring has the steps).
 
     Raises:
-        ConfigError: `config.shadow == "cycles"` (not built yet: use "2d").
+        MissingDependencyError: `config.shadow == "cycles"` without bpy (checked before sampling).
+        ShadowRenderError: the Blender worker of "cycles" failed (nothing is returned).
         InputValueError: a background whose size is not the camera's.
     """
     config = config or InsertConfig()
+    if config.shadow == "cycles":
+        require_bpy()
     w, h = background.size_wh
     if (w, h) != (lighting.camera.width, lighting.camera.height):
         raise InputValueError(
@@ -153,17 +170,17 @@ def insert_object(
         relit_object(prepared, relit, detail=config.detail), extent, placement, (h, w)
     )
     light = dominant_light(lighting.envmap, lighting.key_light)
+    start = time.perf_counter()
     match config.shadow:
         case "2d":
             shadow = cast_shadow_2d(placed, lighting.camera, light)
         case "none":
             shadow = np.ones((h, w), np.float32)
         case "cycles":
-            raise ConfigError(
-                "`--shadow cycles` (Blender's shadow catcher) is not built yet; use `--shadow 2d`."
-            )
+            shadow = cast_shadow_cycles(placed, lighting, light, config.cycles).factor
         case _:
             assert_never(config.shadow)
+    shadow_seconds = time.perf_counter() - start
     return InsertResult(
         image=composite(background, placed, shadow),
         shadow=shadow,
@@ -172,4 +189,5 @@ def insert_object(
         lighting=lighting,
         light=light,
         relit_model=relit,
+        shadow_seconds=shadow_seconds,
     )

@@ -146,10 +146,6 @@ def _check_shadow(mode: str) -> None:
             '"gaffer-data[render]"), which is not installed; use `--shadow 2d` (the pixel-height '
             "shadow, the default)."
         )
-    raise ConfigError(
-        "`--shadow cycles` (Blender's shadow catcher with a proxy from the mask) is not built yet "
-        "(issue 32); use `--shadow 2d` (the pixel-height shadow, the default)."
-    )
 
 
 def _check_light_source(args: argparse.Namespace) -> tuple[Any, dict[str, str]] | None:
@@ -379,11 +375,15 @@ def _insert(args: argparse.Namespace) -> int:
         if together and save is not None:
             write_envmap(stage / save.name, lighting.envmap)
     light = result.light
-    shadow = (
-        f"shadow: {args.shadow} from {light.source} ({light.share:.0%} of the ground's light)"
-        if args.shadow != "none"
-        else "shadow: none"
-    )
+    if args.shadow == "cycles":
+        shadow = (
+            "shadow: cycles (Blender's shadow catcher under the same map, a proxy inflated from the "
+            f"mask; {result.shadow_seconds:.1f} s)"
+        )
+    elif args.shadow == "2d":
+        shadow = f"shadow: 2d from {light.source} ({light.share:.0%} of the ground's light)"
+    else:
+        shadow = "shadow: none"
     x, y = placement.foot_xy
     notes = [
         f"object {placement.height_px:g} px tall, its lowest point at {x:g},{y:g}",
