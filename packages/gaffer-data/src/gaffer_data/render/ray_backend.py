@@ -7,7 +7,15 @@ its attempt (and is retried) without killing the Ray worker; the worker subproce
 parent (PR_SET_PDEATHSIG), so a Ray worker that is killed leaves no orphan writing into the folder.
 
 On a multi-node cluster every node needs `gaffer-data[render,ray]` installed, and the objects, env maps
-and the output folder must be on a shared filesystem under the same absolute paths.
+and the output folder must be on a shared filesystem under the same absolute paths. Tasks are spread over
+the nodes (Ray's SPREAD strategy: each is a whole Blender render, so filling one node first only queues
+them there). A node that dies mid-object fails its task with a system error; Ray re-runs it on a live
+node (`max_retries`), where `render_object` cleans the dead attempt's temporaries, keeps its finished
+images and writes the manifest last, so nothing half-written is ever published (tested on a simulated
+two-node cluster, issue 36).
+
+Ray's usage statistics are switched off (`RAY_USAGE_STATS_ENABLED=0` before `ray.init`): a render farm
+run by this tool never phones home. A cluster started with `ray start` decides that for itself.
 """
 
 import logging
@@ -25,6 +33,7 @@ from gaffer_data.render.runner import ObjectResult, RunOptions, render_object
 logger = logging.getLogger(__name__)
 
 RAY_ADDRESS_ENV = "RAY_ADDRESS"
+USAGE_STATS_ENV = "RAY_USAGE_STATS_ENABLED"
 
 
 def import_ray() -> ModuleType:
@@ -65,11 +74,14 @@ class RayOptions:
 
 def _render_object_task(
     plan: ObjectPlan, out: str, options: RunOptions, threads: int, python: str | None
-) -> ObjectResult:
+) -> tuple[ObjectResult, str]:
     # Runs inside a Ray worker, possibly on another node: start Blender with that node's interpreter
-    # unless the caller chose one explicitly.
+    # unless the caller chose one explicitly. Returns the result and the id of the node that ran it.
+    import ray  # pyright: ignore[reportMissingImports]  # present in a Ray worker
+
     options = replace(options, python=python or sys.executable)
-    return render_object(plan, Path(out), options, threads)
+    node = str(ray.get_runtime_context().get_node_id())
+    return render_object(plan, Path(out), options, threads), node
 
 
 class RayDispatch:
@@ -87,12 +99,16 @@ class RayDispatch:
     def __init__(self, ray_options: RayOptions | None = None) -> None:
         self.ray_options = ray_options or RayOptions()
         self._ray = import_ray()
+        self.object_nodes: dict[str, str] = {}
+        """The Ray node id each object of the last run finished on (for logs and post-mortems)."""
 
     def _connect(self, num_cpus: int) -> bool:
         """Join or start Ray; True when this call started it (and the run must shut it down)."""
         ray = self._ray
         if ray.is_initialized():
             return False
+        # read by ray.init (and inherited by a local instance's raylets and workers)
+        os.environ[USAGE_STATS_ENV] = "0"
         address = self.ray_options.address or os.environ.get(RAY_ADDRESS_ENV) or None
         if address is not None:
             logger.info("joining the Ray cluster at %s", address)
@@ -133,8 +149,12 @@ class RayDispatch:
         try:
             started = self._connect(num_cpus * options.workers)
             task = ray.remote(_render_object_task).options(
-                num_cpus=num_cpus, max_retries=options.retries, retry_exceptions=False
+                num_cpus=num_cpus,
+                max_retries=options.retries,
+                retry_exceptions=False,
+                scheduling_strategy="SPREAD",
             )
+            self.object_nodes = {}
             refs = {task.remote(p, root, options, blender_threads, python): p for p in plans}
             pending = list(refs)
             while pending:
@@ -155,7 +175,10 @@ class RayDispatch:
 
     def _result(self, ref: object, plan: ObjectPlan, options: RunOptions) -> ObjectResult:
         try:
-            return self._ray.get(ref)  # type: ignore[no-any-return]
+            result, node = self._ray.get(ref)
+            self.object_nodes[plan.object_id] = node
+            logger.debug("%s ran on Ray node %s", plan.object_id, node)
+            return result  # type: ignore[no-any-return]
         except self._ray.exceptions.RayError as exc:
             reason = f"the Ray task failed: {type(exc).__name__}: {str(exc).strip()[:2000]}"
             logger.warning("%s: %s", plan.object_id, reason)
