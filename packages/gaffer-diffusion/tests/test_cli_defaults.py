@@ -53,4 +53,4 @@ def test_an_explicit_zero_is_refused_not_read_as_the_default(flag) -> None:
         with pytest.raises(ConfigError, match=flag):
             _sampling(args)
     ok = _sampling(_parser().parse_args(["relight", "x.png", "--out", "o.png"]))
-    assert ok.num_inference_steps == read_default_sampling(None).num_inference_steps == 1
+    assert ok.num_inference_steps == pretrained.gaffer_tiny_sampling().num_inference_steps == 1

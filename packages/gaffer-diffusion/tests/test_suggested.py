@@ -27,7 +27,7 @@ def test_shipped_manifest_records_the_documented_setting() -> None:
     assert own.mirror_average is True
     assert own.compat == "default" and own.latent_mode == "mode"
     assert own.object_fraction == 0.75
-    assert read_default_sampling(None) == own  # no folder: the shipped gaffer-tiny's
+    assert pretrained.gaffer_tiny_sampling() == own
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,8 @@ import numpy as np
 import pytest
 import torch
 
-from gaffer_diffusion import PAPER_SAMPLING, RelightPipeline
+from gaffer_diffusion import PAPER_SAMPLING, RelightPipeline, pretrained
 from gaffer_diffusion.preprocess import crop_square, object_square
-from gaffer_diffusion.suggested import read_default_sampling
 from gaffer_diffusion.testing import tiny_model
 from gaffer_nerf.configs import DiffusionSamplingConfig
 from gaffer_nerf.errors import ConfigError
@@ -82,10 +81,12 @@ def test_fraction_is_checked() -> None:
 
 
 def test_gaffer_tiny_frames_views_and_the_paper_model_does_not() -> None:
-    tiny = DiffusionSamplingConfig().resolved(read_default_sampling(None))
+    tiny = DiffusionSamplingConfig().resolved(pretrained.gaffer_tiny_sampling())
     assert tiny.crop_fraction == 0.75
     assert DiffusionSamplingConfig().resolved(PAPER_SAMPLING).crop_fraction is None
-    whole = DiffusionSamplingConfig(object_fraction="whole").resolved(read_default_sampling(None))
+    whole = DiffusionSamplingConfig(object_fraction="whole").resolved(
+        pretrained.gaffer_tiny_sampling()
+    )
     assert whole.crop_fraction is None
     assert (
         DiffusionSamplingConfig(object_fraction=0.5).resolved(PAPER_SAMPLING).crop_fraction == 0.5

@@ -24,12 +24,28 @@ def guide() -> DiffusionGuide:
     )
 
 
-def test_loop_from_pure_noise_equals_the_pipeline(guide: DiffusionGuide) -> None:
+def test_denoise_from_the_whole_schedule_equals_sampling_from_the_noised_latents(
+    guide: DiffusionGuide,
+) -> None:
+    # one sampler: Stage 2's img2img runs `sample`'s loop; from t* = 1 over the whole schedule it
+    # equals `sample` started from the input's latents noised to the schedule's first step
+    pipe = guide.pipeline
     cond = random_conditions(2, 64, seed=1)
-    enc = guide.pipeline.encode(cond)
+    enc = pipe.encode(cond)
+    x = torch.rand(2, 3, 64, 64, generator=torch.Generator().manual_seed(2))
     noise = torch.randn(2, 4, 8, 8, generator=torch.Generator().manual_seed(0))
-    ref = guide.pipeline.sample(enc, SamplingConfig(num_inference_steps=6), latents=noise).images
-    torch.testing.assert_close(guide.sample_from_noise(enc, noise), ref, atol=1e-5, rtol=1e-5)
+    sampling = SamplingConfig(num_inference_steps=6, guidance_scale=3.0)
+    sched, ts = pipe.img2img_timesteps(1.0, sampling)
+    assert ts.tolist() == sched.timesteps.tolist()  # t* = 1: every step
+    z_t = pipe.add_noise(pipe.encode_images(x, enc), noise, ts[:1].repeat(2))
+    ref = pipe.sample(enc, sampling, latents=z_t).images
+    got = pipe.denoise_from(x, 1.0, enc, sampling, noise=noise)
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)
+    # and the guide's Stage 2 target is the pipeline's img2img with the guide's sampling
+    g = torch.Generator().manual_seed(3)
+    want = pipe.denoise_from(x, 0.4, enc, guide.sampling_config(), generator=g)
+    g = torch.Generator().manual_seed(3)
+    torch.testing.assert_close(guide.denoise_from(x, enc, 0.4, generator=g), want)
 
 
 def test_relight_views_are_batch_invariant(guide: DiffusionGuide) -> None:
@@ -77,17 +93,24 @@ def test_denoise_from_t_star(guide: DiffusionGuide) -> None:
     assert float((out - low).abs().mean()) > 1e-4
     again = guide.denoise_from(x, enc, 0.4, generator=torch.Generator().manual_seed(0))
     torch.testing.assert_close(again, out)
-    sched, ts = guide._timesteps(0.4)
+    sched, ts = guide.pipeline.img2img_timesteps(0.4, guide.sampling_config())
     full = sched.timesteps  # 6 "leading" steps: 834, 667, 500, 333, 167, 1
     assert ts.tolist() == [t for t in full.tolist() if t <= 400] == [333, 167, 1]
 
 
 def _known_eps(value: float, seen: dict[str, object]):
-    """A stand-in for the guide's CFG noise prediction: `value` everywhere (NaN/Inf allowed), and a
-    record of the noisy latent and timestep it was asked about."""
+    """A stand-in for the pipeline's noise prediction: `value` everywhere (NaN/Inf allowed), and a
+    record of the noisy latent, timestep and guidance it was asked about."""
 
-    def eps(z_t: torch.Tensor, t: torch.Tensor, enc: object, guidance: float) -> torch.Tensor:
-        seen["z_t"], seen["t"], seen["guidance"] = z_t.detach().clone(), int(t), guidance
+    def eps(
+        z_t: torch.Tensor,
+        t: torch.Tensor,
+        enc: object,
+        *,
+        guidance_scale: float = 1.0,
+        as_epsilon: bool = False,
+    ) -> torch.Tensor:
+        seen["z_t"], seen["t"], seen["guidance"] = z_t.detach().clone(), int(t), guidance_scale
         out = torch.zeros_like(z_t)
         out[0, 0] = value
         return out
@@ -102,11 +125,9 @@ def test_sds_gradient_is_w_t_times_eps_hat_minus_eps_through_the_encoder(
     # pushed to the image through the encoder's Jacobian. With a noise prediction we know (0.3 on
     # channel 0, 0 elsewhere) and the z_t the model was shown, eps = (z_t - sqrt(abar) z_0) /
     # sqrt(1 - abar) and the whole gradient follow; a wrong sign, weight or Jacobian fails here.
-    from gaffer_nerf.guidance.diffusion import _ddim_scheduler
-
     assert guide.model.config.scheduler.prediction_type == "epsilon"  # eps_hat is the UNet output
     seen: dict[str, object] = {}
-    monkeypatch.setattr(guide, "_eps", _known_eps(0.3, seen))
+    monkeypatch.setattr(guide.pipeline, "predict_noise", _known_eps(0.3, seen))
     enc = guide.pipeline.encode(random_conditions(1, 64, seed=5))
     x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(6)).requires_grad_()
     cfg = Stage2Config(loss="sds", sds_weight=2.0, sds_guidance_scale=1.5)
@@ -116,8 +137,8 @@ def test_sds_gradient_is_w_t_times_eps_hat_minus_eps_through_the_encoder(
     assert isinstance(t, int) and 20 <= t <= 980 and seen["guidance"] == 1.5
 
     x_ref = x.detach().clone().requires_grad_()
-    z0 = guide.encode_image(x_ref, enc, mode="mode")
-    abar = _ddim_scheduler(guide.model.config.scheduler).alphas_cumprod[t]
+    z0 = guide.pipeline.encode_images(x_ref, enc, latent_mode="mode")
+    abar = guide.pipeline.alpha_bar(torch.tensor(t))
     z_t = seen["z_t"]
     assert isinstance(z_t, torch.Tensor)
     eps = (z_t - abar.sqrt() * z0.detach()) / (1.0 - abar).sqrt()
@@ -133,7 +154,7 @@ def test_sds_gradient_is_w_t_times_eps_hat_minus_eps_through_the_encoder(
     target = (z0 - g).detach()
     before = float(0.5 * (g**2).sum())  # at x: z_0 - target = g
     with torch.no_grad():
-        stepped = guide.encode_image(x.detach() - 1e-3 * x.grad / x.grad.norm(), enc)
+        stepped = guide.pipeline.encode_images(x.detach() - 1e-3 * x.grad / x.grad.norm(), enc)
     assert float(0.5 * ((stepped - target) ** 2).sum()) < before
 
 
@@ -145,7 +166,7 @@ def test_non_finite_sds_gradients_are_zeroed_counted_and_warned_about_once(
     channel = enc.image_latents.shape[-1] ** 2  # the values of one latent channel (8 x 8)
     caplog.set_level(logging.WARNING, logger="gaffer_nerf.guidance.diffusion")
     for step, bad in enumerate((float("nan"), float("inf"))):
-        monkeypatch.setattr(fresh, "_eps", _known_eps(bad, {}))
+        monkeypatch.setattr(fresh.pipeline, "predict_noise", _known_eps(bad, {}))
         x = torch.rand(1, 3, 64, 64, generator=torch.Generator().manual_seed(6)).requires_grad_()
         loss = fresh.sds_loss(
             x, enc, Stage2Config(loss="sds"), generator=torch.Generator().manual_seed(step)
@@ -200,11 +221,18 @@ def test_residual_v_prediction_model_round_trips_and_gives_sds_gradients() -> No
     enc = g.pipeline.encode(cond)
     x = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(8))
     # encode -> decode is exact in pixel space, and the input itself is the zero residual
-    torch.testing.assert_close(g.decode(g.encode_image(x, enc), enc), x, atol=1e-6, rtol=0)
-    assert float(g.encode_image(cond.image, enc).abs().max()) < 1e-6
+    pipe = g.pipeline
+    torch.testing.assert_close(
+        pipe.decode_latents(pipe.encode_images(x, enc), enc), x, atol=1e-6, rtol=0
+    )
+    assert float(pipe.encode_images(cond.image, enc).abs().max()) < 1e-6
     noise = torch.randn(2, 4, 32, 32, generator=torch.Generator().manual_seed(0))
-    ref = g.pipeline.sample(enc, SamplingConfig(num_inference_steps=4), latents=noise).images
-    torch.testing.assert_close(g.sample_from_noise(enc, noise), ref, atol=1e-5, rtol=1e-5)
+    sampling = SamplingConfig(num_inference_steps=4)
+    _, ts = pipe.img2img_timesteps(1.0, sampling)
+    z_t = pipe.add_noise(pipe.encode_images(x, enc), noise, ts[:1].repeat(2))
+    ref = pipe.sample(enc, sampling, latents=z_t).images
+    got = pipe.denoise_from(x, 1.0, enc, sampling, noise=noise)
+    torch.testing.assert_close(got, ref, atol=1e-5, rtol=1e-5)
     xg = x[:1].clone().requires_grad_()
     loss = g.sds_loss(
         xg, enc.select([0]), Stage2Config(loss="sds"), generator=torch.Generator().manual_seed(0)

@@ -107,13 +107,13 @@ def test_sds_stage_reports_the_non_finite_gradient_values_it_zeroed(
     guide = _guide(cfg)
     calls = {"n": 0}
 
-    def one_nan(z_t: torch.Tensor, *_: object) -> torch.Tensor:
+    def one_nan(z_t: torch.Tensor, *_: object, **__: object) -> torch.Tensor:
         calls["n"] += 1
         out = torch.zeros_like(z_t)
         out[0, 0, 0, 0] = float("nan")  # one bad value per SDS evaluation
         return out
 
-    monkeypatch.setattr(guide, "_eps", one_nan)
+    monkeypatch.setattr(guide.pipeline, "predict_noise", one_nan)
     res = relight_field(
         fitted.field, scene.train, scene.env_target, guide, cfg,
         unavailable_perceptual("not requested"),

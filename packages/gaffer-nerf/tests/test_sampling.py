@@ -28,7 +28,8 @@ def gaffer_diffusion_choice() -> tuple[Any, str]:
 
 
 class Recorder:
-    """Wraps the three places the model is sampled: the pipeline, the CFG step and the schedule."""
+    """Wraps the places the model is sampled: the pipeline (Stage 1), its img2img (Stage 2 targets),
+    its noise prediction (SDS), the img2img schedule, and the guide's lighting."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.sample_configs: list[Any] = []
@@ -37,22 +38,31 @@ class Recorder:
         self.eps_batches: list[int] = []
         self.schedule_steps: list[int] = []
         self.compat: list[str] = []
-        sample, eps, timesteps = RelightPipeline.sample, _Guide._eps, _Guide._timesteps
-        lighting = _Guide.lighting
+        sample, denoise = RelightPipeline.sample, RelightPipeline.denoise_from
+        predict = RelightPipeline.predict_noise
+        timesteps, lighting = RelightPipeline.img2img_timesteps, _Guide.lighting
 
         def rec_sample(pipe: Any, encoded: Any, sampling: Any = None, **kw: Any) -> Any:
             self.sample_configs.append(sampling)
             self.sample_batches.append(encoded.batch_size)
             return sample(pipe, encoded, sampling, **kw)
 
-        def rec_eps(guide: Any, z: Any, t: Any, enc: Any, guidance: float) -> Any:
-            self.eps_guidance.append(float(guidance))
-            self.eps_batches.append(int(z.shape[0]))
-            return eps(guide, z, t, enc, guidance)
+        def rec_denoise(
+            pipe: Any, images: Any, t: float, enc: Any, sampling: Any = None, **kw: Any
+        ) -> Any:
+            self.eps_guidance.append(float(sampling.guidance_scale))
+            mirrored = kw.get("mirrored") is not None  # the mirrors run in the same batch
+            self.eps_batches.append(int(images.shape[0]) * (2 if mirrored else 1))
+            return denoise(pipe, images, t, enc, sampling, **kw)
 
-        def rec_timesteps(guide: Any, t_frac: float) -> Any:
-            sched, ts = timesteps(guide, t_frac)
-            self.schedule_steps.append(int(sched.num_inference_steps))
+        def rec_predict(pipe: Any, z_t: Any, t: Any, enc: Any, **kw: Any) -> Any:  # SDS
+            self.eps_guidance.append(float(kw["guidance_scale"]))
+            self.eps_batches.append(int(z_t.shape[0]))
+            return predict(pipe, z_t, t, enc, **kw)
+
+        def rec_timesteps(pipe: Any, t_frac: float, sampling: Any = None) -> Any:
+            sched, ts = timesteps(pipe, t_frac, sampling)
+            self.schedule_steps.append(len(sched.timesteps))  # the whole schedule it set
             return sched, ts
 
         def rec_lighting(guide: Any, envmap: Any, w2c: Any) -> Any:
@@ -60,8 +70,9 @@ class Recorder:
             return lighting(guide, envmap, w2c)
 
         monkeypatch.setattr(RelightPipeline, "sample", rec_sample)
-        monkeypatch.setattr(_Guide, "_eps", rec_eps)
-        monkeypatch.setattr(_Guide, "_timesteps", rec_timesteps)
+        monkeypatch.setattr(RelightPipeline, "denoise_from", rec_denoise)
+        monkeypatch.setattr(RelightPipeline, "predict_noise", rec_predict)
+        monkeypatch.setattr(RelightPipeline, "img2img_timesteps", rec_timesteps)
         monkeypatch.setattr(_Guide, "lighting", rec_lighting)
 
 
@@ -167,7 +178,7 @@ def test_guide_resolves_every_unset_field() -> None:
     )
     assert (s.mirror_average, s.compat, s.latent_mode) == (m.mirror_average, m.compat, "mode")
     # a one-step model whose step is above t*: Stage 2 takes one step from t* (not from t = 999)
-    _, ts = guide._timesteps(0.4)
+    _, ts = guide.pipeline.img2img_timesteps(0.4, guide.sampling_config())
     assert ts.tolist() == [400]
     mine = DiffusionGuide(
         RelightPipeline(model.model), DiffusionSamplingConfig(compat="neural-gaffer")

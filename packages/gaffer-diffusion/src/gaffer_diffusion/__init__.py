@@ -21,6 +21,7 @@ _EXPORTS: dict[str, str] = {
     "GafferDiffusionError": "errors",
     "ImageEncoderConfig": "configs",
     "InputValueError": "errors",
+    "LatentMode": "conditioning",
     "LightingMaps": "conditioning",
     "MetricUnavailableError": "errors",
     "MissingDependencyError": "errors",
@@ -67,6 +68,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     from gaffer_diffusion.conditioning import (
         EncodedConditions,
+        LatentMode,
         LightingMaps,
         RelightingConditions,
         clip_preprocess,
@@ -117,6 +119,7 @@ __all__ = [
     "GafferDiffusionError",
     "ImageEncoderConfig",
     "InputValueError",
+    "LatentMode",
     "LightingMaps",
     "MetricUnavailableError",
     "MissingDependencyError",

@@ -22,6 +22,7 @@ from gaffer_diffusion.errors import CheckpointNotFoundError
 # `loading` imports torch and diffusers; the CLI imports this module before it checks its flags
 if TYPE_CHECKING:
     from gaffer_diffusion.loading import LoadResult
+    from gaffer_diffusion.suggested import DefaultSampling
 
 _HOW = (
     "gaffer-tiny ships inside the gaffer-diffusion package (`gaffer_diffusion/weights/gaffer-tiny/`). "
@@ -39,6 +40,13 @@ def _package_dir(*parts: str) -> Path:
 def gaffer_tiny_path() -> Path:
     """The folder of the shipped gaffer-tiny weights (it may be missing in a stripped install)."""
     return _package_dir("weights", "gaffer-tiny")
+
+
+def gaffer_tiny_sampling() -> "DefaultSampling":
+    """How gaffer-tiny is meant to be sampled: what its folder's manifest records (a JSON read)."""
+    from gaffer_diffusion.suggested import read_default_sampling
+
+    return read_default_sampling(gaffer_tiny_path())
 
 
 def example_dataset_path() -> Path:
@@ -88,6 +96,7 @@ def load_gaffer_tiny(*, strict: bool = True) -> "LoadResult":
 __all__ = [
     "example_dataset_path",
     "gaffer_tiny_path",
+    "gaffer_tiny_sampling",
     "load_gaffer_tiny",
     "not_our_folder_message",
 ]

@@ -208,20 +208,15 @@ PAPER_SUGGESTION = PAPER_SAMPLING
 """The former name of `PAPER_SAMPLING`."""
 
 
-def read_default_sampling(folder: Path | None) -> DefaultSampling:
+def read_default_sampling(folder: Path) -> DefaultSampling:
     """The setting recorded in `folder/gaffer_model.json`, or `PAPER_SAMPLING` when none is.
 
-    A folder without our manifest (the authors' `checkpoint-80000/`) gets the paper's setting;
-    None reads the shipped gaffer-tiny's folder (`pretrained.gaffer_tiny_path()`), the model every
-    command uses without `--checkpoint`.
+    A folder without our manifest (the authors' `checkpoint-80000/`) gets the paper's setting
+    (the shipped gaffer-tiny's: `pretrained.gaffer_tiny_sampling()`).
 
     Raises:
         CheckpointMismatchError: the manifest is unreadable or its block is malformed (named).
     """
-    if folder is None:
-        from gaffer_diffusion import pretrained
-
-        folder = pretrained.gaffer_tiny_path()
     path = Path(folder) / MANIFEST_NAME
     if not path.is_file():
         return PAPER_SAMPLING

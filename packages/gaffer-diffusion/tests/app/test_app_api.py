@@ -83,8 +83,8 @@ def _job(
 def test_preview_shows_the_library_encoding(client: Any) -> None:
     import torch
 
+    from gaffer_diffusion import pretrained
     from gaffer_diffusion.conditioning import lighting_from_envmap
-    from gaffer_diffusion.suggested import read_default_sampling
     from gaffer_envmap.bundled import read_bundled_hdri
     from gaffer_envmap.poses import orbit_w2c_blender
 
@@ -96,7 +96,7 @@ def test_preview_shows_the_library_encoding(client: Any) -> None:
         read_bundled_hdri("sunset"),
         [orbit_w2c_blender(POSE[0], POSE[1])],
         size=128,
-        compat=read_default_sampling(None).compat,  # gaffer-tiny's, from its manifest
+        compat=pretrained.gaffer_tiny_sampling().compat,  # gaffer-tiny's, from its manifest
     )
     want = (maps.ldr[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy()
     assert np.abs(ldr_a.astype(int) - want.astype(int)).max() <= 1

@@ -105,8 +105,8 @@ def client(app_server: Any, tmp_path_factory: pytest.TempPathFactory) -> Any:
 def test_the_page_previews_the_words_of_the_sky_source(client: Any) -> None:
     import torch
 
+    from gaffer_diffusion import pretrained
     from gaffer_diffusion.conditioning import lighting_from_envmap
-    from gaffer_diffusion.suggested import read_default_sampling
     from gaffer_envmap.poses import orbit_w2c_blender
 
     tiny, pose = "gaffer-tiny (shipped)", (30.0, 10.0, 0.0)
@@ -119,7 +119,7 @@ def test_the_page_previews_the_words_of_the_sky_source(client: Any) -> None:
         env,
         [orbit_w2c_blender(pose[0], pose[1])],
         size=128,
-        compat=read_default_sampling(None).compat,  # gaffer-tiny's, from its manifest
+        compat=pretrained.gaffer_tiny_sampling().compat,  # gaffer-tiny's, from its manifest
     )
     want = (maps.ldr[0].permute(1, 2, 0) * 255).round().to(torch.uint8).numpy().astype(int)
     assert np.abs(got - want).max() <= 1

@@ -17,15 +17,15 @@ import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import torch
-from diffusers.models.attention_processor import AttnProcessor, AttnProcessor2_0
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from diffusers.utils.torch_utils import randn_tensor
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion import pretrained
 from gaffer_diffusion.conditioning import (
     EncodedConditions,
     LatentMode,
@@ -34,10 +34,11 @@ from gaffer_diffusion.conditioning import (
     encode_conditions,
 )
 from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
-from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode, vae_posterior
 from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
+from gaffer_diffusion.runtime_dtype import prepare_for_inference, resolve_runtime
 from gaffer_diffusion.schedulers import Sampler, make_scheduler
-from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling, read_default_sampling
+from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +73,7 @@ def default_sampling_for(model: NeuralGafferModel) -> DefaultSampling:
     shipped gaffer-tiny folder records (read from its manifest); any other the paper's.
     """
     if model.config.name == GAFFER_TINY_NAME:
-        return read_default_sampling(None)
+        return pretrained.gaffer_tiny_sampling()
     return PAPER_SAMPLING
 
 
@@ -113,16 +114,13 @@ class RelightPipeline:
         default_sampling: DefaultSampling | None = None,
         source: Path | None = None,
     ) -> None:
-        self.runtime = runtime or RuntimeConfig()
+        # `dtype="auto"` resolved for this model; `dtype_choice` says what and why (issue 35)
+        self.runtime, self.dtype_choice = resolve_runtime(model, runtime or RuntimeConfig())
         # read once (`load_pipeline` reads the model folder); callers only override it
         self.default_sampling: DefaultSampling = default_sampling or default_sampling_for(model)
         self.source = source
         self.model = model.to(device=self.runtime.device, dtype=self.runtime.weights_dtype).eval()
-        match self.runtime.attention:
-            case "sdpa":
-                self.model.unet.set_attn_processor(AttnProcessor2_0())
-            case "eager":
-                self.model.unet.set_attn_processor(AttnProcessor())
+        prepare_for_inference(self.model, self.runtime)  # SDPA; channels-last on the bf16 CPU path
         self._unet: Callable[..., object] = self.model.unet
         if self.runtime.compile:
             self._unet = torch.compile(
@@ -133,6 +131,7 @@ class RelightPipeline:
         if self.runtime.autocast:
             self._unet = _under_autocast(self._unet, self.device.type, self.runtime.torch_dtype)
         self._fp32: NeuralGafferModel | None = None
+        self._noise_schedule: Sampler | None = None
 
     @property
     def device(self) -> torch.device:
@@ -289,6 +288,174 @@ class RelightPipeline:
             images = images.clone()
             images[bad] = img_fix
         return RelightOutput(images=images, latents=z_0, retried_in_fp32=tuple(bad))
+
+    # The sampler's parts, public so that guidance from 3D (gaffer-nerf's Stage 2 targets and SDS,
+    # paper §3.3) runs the same loop, guidance and decoding as `sample` instead of its own copy.
+
+    @property
+    def num_train_timesteps(self) -> int:
+        """T, the number of training timesteps (1000 for the paper's model)."""
+        return int(self.model.config.scheduler.num_train_timesteps)
+
+    def _train_schedule(self) -> Sampler:
+        if self._noise_schedule is None:
+            self._noise_schedule = make_scheduler("ddim", self.model.config.scheduler)
+        return self._noise_schedule
+
+    def alpha_bar(self, t: Tensor) -> Tensor:
+        """alpha_bar_t of the model's noise schedule at integer timesteps `t`, on the pipeline's
+        device and dtype."""
+        bars = cast(Tensor, self._train_schedule().alphas_cumprod)  # type: ignore[attr-defined]
+        return bars.to(self.device)[t.to(self.device).long()].to(self.dtype)
+
+    def add_noise(
+        self, z0: Float[Tensor, "N 4 h w"], noise: Float[Tensor, "N 4 h w"], t: Tensor
+    ) -> Float[Tensor, "N 4 h w"]:
+        """z_t ~ q(z_t | z_0) = sqrt(alpha_bar_t) z_0 + sqrt(1 - alpha_bar_t) noise, one t per item."""
+        sched = self._train_schedule()
+        return sched.add_noise(z0, noise, _int_tensor(t))  # type: ignore[union-attr]
+
+    def predict_noise(
+        self,
+        z_t: Float[Tensor, "N 4 h w"],
+        t: Tensor,
+        encoded: EncodedConditions,
+        *,
+        guidance_scale: float = 1.0,
+        as_epsilon: bool = False,
+    ) -> Float[Tensor, "N 4 h w"]:
+        """The model's classifier-free-guided prediction at noisy latents `z_t` and timestep `t`,
+        as every sampling step makes it (unconditional branch: CLIP and the 3 latents zeroed).
+
+        Args:
+            z_t: noisy diffusion latents (`add_noise`).
+            t: the timestep (a 0-d or one-element integer tensor).
+            encoded: the items' conditions (`encode`).
+            guidance_scale: s in eps_u + s (eps_c - eps_u); 1 is one conditional pass.
+            as_epsilon: convert a v- or sample-prediction to the noise estimate eps_hat (SDS
+                needs eps_hat whatever the model predicts).
+
+        Returns:
+            The prediction (the UNet's own kind, or eps_hat with `as_epsilon`). Not under
+            `no_grad`: callers decide.
+        """
+        enc = encoded.to(device=self.device, dtype=self.dtype)
+        z = z_t.to(device=self.device, dtype=self.dtype)
+        t = t.to(self.device)
+        pred = _guided_prediction(self._unet, z, t, enc, float(guidance_scale))
+        if as_epsilon:
+            pred = _as_epsilon(
+                pred, z, self.alpha_bar(t), self.model.config.scheduler.prediction_type
+            )
+        return pred
+
+    def encode_images(
+        self,
+        images: Float[Tensor, "N 3 H W"],
+        encoded: EncodedConditions,
+        *,
+        latent_mode: LatentMode = "mode",
+        generator: torch.Generator | None = None,
+    ) -> Float[Tensor, "N 4 h w"]:
+        """The diffusion latents z_0 of images in [0, 1] (differentiable w.r.t. `images`): E(x)
+        scaled for the paper's model, E(x) - E(input) scaled for a residual one such as gaffer-tiny,
+        whose input latents `encoded` holds (`NeuralGafferModel.diffusion_target`)."""
+        x = (images * 2.0 - 1.0).to(device=self.device, dtype=self.dtype)
+        dist = vae_posterior(self.model.vae, x)
+        z = dist.mode() if latent_mode == "mode" else dist.sample(generator=generator)
+        return self.model.diffusion_target(z, encoded.image_latents.to(z))
+
+    def decode_latents(
+        self, z0: Float[Tensor, "N 4 h w"], encoded: EncodedConditions
+    ) -> Float[Tensor, "N 3 H W"]:
+        """Images in [0, 1] (float32) from diffusion latents z_0, as `sample` decodes them."""
+        return _decode(self.model, z0, encoded)
+
+    def img2img_timesteps(
+        self, t_start: float, sampling: SamplingConfig | None = None
+    ) -> tuple[Sampler, Tensor]:
+        """The scheduler and the timesteps `denoise_from(t_start)` runs.
+
+        The steps of the `sampling.num_inference_steps` schedule at or below t_start x T; when
+        it has none there (a few-step model such as gaffer-tiny, whose one step is at t = 999),
+        one step from t_start x T itself (never from above, which would discard the image).
+        """
+        sampling = sampling or self.default_sampling.sampling_config()
+        if not 0.0 < t_start <= 1.0:
+            raise ConfigError(
+                f"`t_start` is {t_start!r}; expected a fraction of the training timesteps in (0, 1]."
+            )
+        sched = make_scheduler(
+            sampling.scheduler,
+            self.model.config.scheduler,
+            timestep_spacing=sampling.timestep_spacing,
+        )
+        sched.set_timesteps(sampling.num_inference_steps, device=self.device)
+        ts = sched.timesteps
+        limit = t_start * self.num_train_timesteps
+        below = ts[ts <= limit]
+        if below.numel() > 0:
+            return sched, below
+        start = max(1, round(limit))  # every schedule step lies above t_start
+        return sched, torch.tensor([start], dtype=ts.dtype, device=ts.device)
+
+    @torch.no_grad()
+    def denoise_from(
+        self,
+        images: Float[Tensor, "B 3 H W"],
+        t_start: float,
+        encoded: EncodedConditions,
+        sampling: SamplingConfig | None = None,
+        *,
+        generator: torch.Generator | None = None,
+        latent_mode: LatentMode = "mode",
+        noise: Float[Tensor, "N 4 h w"] | None = None,
+        mirrored: EncodedConditions | None = None,
+    ) -> Float[Tensor, "B 3 H W"]:
+        """Image-to-image (SDEdit, paper §3.3 Eq. 3; diffusers' `strength`): encode `images`,
+        noise them to t_start, denoise with `sample`'s loop and guidance, decode.
+
+        With `sampling.average_samples` K the mean of K noises; with `mirrored` (the items'
+        conditions under the mirrored lighting) also the mirrored images under them with the same
+        noise, flipped back and averaged.
+
+        Args:
+            images: `[B, 3, H, W]` in [0, 1] at the model resolution.
+            t_start: where to start, a fraction of the training timesteps (`img2img_timesteps`).
+            encoded: the items' conditions (`encode`).
+            sampling: steps, guidance, scheduler; None: `default_sampling`.
+            generator: one RNG for the posterior sample (`latent_mode="sample"`) and then the noise.
+            latent_mode: how `images` are encoded: the VAE posterior's "mode" or a "sample".
+            noise: `[B * K, 4, h, w]` noise (item-major) instead of drawing it.
+            mirrored: the mirrored conditions for the mirror mean, or None.
+
+        Returns:
+            `[B, 3, H, W]` float32 images in [0, 1].
+        """
+        sampling = sampling or self.default_sampling.sampling_config()
+        b, k = images.shape[0], sampling.average_samples
+        enc = encoded.to(device=self.device, dtype=self.dtype).repeat_interleave(k)
+        x = images.repeat_interleave(k, dim=0)
+        if mirrored is not None:
+            m = mirrored.to(device=self.device, dtype=self.dtype).repeat_interleave(k)
+            enc = EncodedConditions.cat([enc, m])
+            x = torch.cat([x, x.flip(-1)])
+        sched, ts = self.img2img_timesteps(t_start, sampling)
+        z0 = self.encode_images(x, enc, latent_mode=latent_mode, generator=generator)
+        if noise is None:
+            noise = torch.randn((b * k, *z0.shape[1:]), generator=generator, dtype=torch.float32)
+        elif tuple(noise.shape) != (b * k, *z0.shape[1:]):
+            raise ConfigError(
+                f"`noise` has shape {tuple(noise.shape)}; expected {(b * k, *z0.shape[1:])}."
+            )
+        if mirrored is not None:
+            noise = torch.cat([noise, noise])
+        noise = noise.to(device=z0.device, dtype=z0.dtype)
+        z = sched.add_noise(z0, noise, _int_tensor(ts[:1].repeat(z0.shape[0])))  # type: ignore[union-attr]
+        _, out = _denoise(self.model, self._unet, enc, z, sampling, None, None, start=(sched, ts))
+        if mirrored is not None:
+            out = (out[: b * k] + out[b * k :].flip(-1)) / 2.0
+        return out.unflatten(0, (b, k)).mean(dim=1)
 
     def _sample_mean(
         self,
@@ -457,6 +624,18 @@ class RelightPipeline:
         return self._fp32
 
 
+if TYPE_CHECKING:
+    _IntTensor = torch.IntTensor
+else:  # at run time an int64 tensor: no tensor is an instance of the legacy class (see below)
+    _IntTensor = Tensor
+
+
+def _int_tensor(timesteps: Tensor) -> _IntTensor:
+    """`timesteps` as diffusers' `add_noise` annotates them: the legacy `torch.IntTensor` class, which
+    no tensor is an instance of (it takes any integer tensor; the schedule's are int64)."""
+    return cast(torch.IntTensor, timesteps)
+
+
 def _under_autocast(
     unet: Callable[..., object], device_type: str, dtype: torch.dtype
 ) -> Callable[..., object]:
@@ -493,6 +672,24 @@ def _step(
     return out[0] if isinstance(out, tuple) else out.prev_sample
 
 
+def _guided_prediction(
+    unet: Callable[..., object], z: Tensor, t: Tensor, enc: EncodedConditions, guidance_scale: float
+) -> Tensor:
+    """The UNet's prediction at `z` (already `scale_model_input`-ed), timestep `t`, with
+    classifier-free guidance: the unconditional branch zeroes the CLIP embedding AND the three
+    conditioning latents (official implementation §2); guidance 1 is one conditional pass."""
+    cond = enc.concat_latents()  # [N, 12, h, w]  E(x), E(E_H), E(E_L)
+    context = enc.clip_embeds  # [N, 1, D]
+    if guidance_scale == 1.0:  # eps = eps_cond exactly (SamplingConfig.do_classifier_free_guidance)
+        unet_in = torch.cat([z, cond], dim=1)  # [N, 16, h, w]  z_t + 3x4 conditioning latents
+        return unet(unet_in, t, encoder_hidden_states=context).sample  # type: ignore[attr-defined]
+    unet_in = torch.cat([torch.cat([z, z]), torch.cat([cond, torch.zeros_like(cond)])], dim=1)
+    context = torch.cat([context, torch.zeros_like(context)])  # [2N, 1, D]
+    eps = unet(unet_in, t, encoder_hidden_states=context).sample  # type: ignore[attr-defined]
+    eps_c, eps_u = eps.chunk(2)
+    return eps_u + guidance_scale * (eps_c - eps_u)
+
+
 def _denoise(
     model: NeuralGafferModel,
     unet: Callable[..., object],
@@ -501,38 +698,47 @@ def _denoise(
     sampling: SamplingConfig,
     generator: torch.Generator | list[torch.Generator] | None,
     callback: StepCallback | None,
+    start: tuple[Sampler, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
-    """The sampling loop and decode. Returns (final latents [N,4,h,w], images [N,3,H,W] float32)."""
-    device = z_T.device
-    scheduler = make_scheduler(
-        sampling.scheduler, model.config.scheduler, timestep_spacing=sampling.timestep_spacing
-    )
-    scheduler.set_timesteps(sampling.num_inference_steps, device=device)
-    z = z_T * scheduler.init_noise_sigma
-    cond = enc.concat_latents()  # [N, 12, h, w]  E(x), E(E_H), E(E_L)
-    context = enc.clip_embeds  # [N, 1, D]
-    cfg = sampling.do_classifier_free_guidance
-    if cfg:
-        # unconditional branch: CLIP embedding AND conditioning latents zeroed (official impl. §2)
-        cond = torch.cat([cond, torch.zeros_like(cond)])  # [2N, 12, h, w]
-        context = torch.cat([context, torch.zeros_like(context)])  # [2N, 1, D]
-    timesteps = scheduler.timesteps
+    """The sampling loop and decode, the one every path runs (`sample`, `denoise_from`).
+
+    From pure noise `z_T` over the whole schedule, or with `start` = (scheduler, its timesteps at
+    or below t*) from latents `z_T` already noised to the first of them (SDEdit, paper §3.3).
+    Returns (final latents [N,4,h,w], images [N,3,H,W] float32).
+    """
+    if start is None:
+        scheduler = make_scheduler(
+            sampling.scheduler, model.config.scheduler, timestep_spacing=sampling.timestep_spacing
+        )
+        scheduler.set_timesteps(sampling.num_inference_steps, device=z_T.device)
+        timesteps = scheduler.timesteps
+        z = z_T * scheduler.init_noise_sigma
+    else:
+        (scheduler, timesteps), z = start, z_T
     for i, t in enumerate(timesteps):
-        z_in = torch.cat([z, z]) if cfg else z
-        z_in = scheduler.scale_model_input(z_in, cast(int, t))  # a 0-d tensor, typed int upstream
-        unet_in = torch.cat([z_in, cond], dim=1)  # [2N, 16, h, w]  z_t + 3x4 conditioning latents
-        eps = unet(unet_in, t, encoder_hidden_states=context).sample  # type: ignore[attr-defined]
-        if cfg:
-            eps_c, eps_u = eps.chunk(2)
-            eps = eps_u + sampling.guidance_scale * (eps_c - eps_u)
+        z_in = scheduler.scale_model_input(z, cast(int, t))  # a 0-d tensor, typed int upstream
+        eps = _guided_prediction(unet, z_in, t, enc, sampling.guidance_scale)
         z = _step(scheduler, eps, t, z, eta=sampling.eta, generator=generator)
         if callback is not None:
             callback(i, len(timesteps))
-    decoded = vae_decode(model.vae, model.decodable_latents(z, enc.image_latents))
+    return z, _decode(model, z, enc)
+
+
+def _decode(model: NeuralGafferModel, z: Tensor, enc: EncodedConditions) -> Tensor:
+    """Images in [0, 1] (float32) from diffusion latents z_0 (`NeuralGafferModel.decodable_latents`)."""
+    decoded = vae_decode(model.vae, model.decodable_latents(z, enc.image_latents.to(z)))
     images = (decoded.float() / 2.0 + 0.5).clamp(0.0, 1.0)
     # clamp keeps NaN, so the caller's finiteness check still sees them
-    images = torch.where(torch.isfinite(decoded.float()), images, decoded.float())
-    return z, images
+    return torch.where(torch.isfinite(decoded.float()), images, decoded.float())
+
+
+def _as_epsilon(pred: Tensor, z_t: Tensor, alpha_bar: Tensor, prediction_type: str) -> Tensor:
+    """The UNet's output as a noise estimate, whatever it predicts."""
+    if prediction_type == "v_prediction":  # v = sqrt(abar) eps - sqrt(1 - abar) z_0
+        return alpha_bar.sqrt() * pred + (1.0 - alpha_bar).sqrt() * z_t
+    if prediction_type == "sample":  # z_t = sqrt(abar) z_0 + sqrt(1 - abar) eps
+        return (z_t - alpha_bar.sqrt() * pred) / (1.0 - alpha_bar).sqrt()
+    return pred
 
 
 def _mirror_normals(normals: Tensor) -> Tensor:

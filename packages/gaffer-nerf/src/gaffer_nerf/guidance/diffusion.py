@@ -1,41 +1,37 @@
 """The relighting diffusion model as a prior for 3D: relit views (Stage 1), guidance targets (Stage 2), SDS.
 
-Built on gaffer-diffusion's public inference API (`RelightPipeline`, `make_scheduler`,
-`EncodedConditions`, `lighting_from_envmap`). Every path that samples the model (Stage 1's relit views,
-Stage 2's targets, SDS) takes its steps, guidance, sample averaging, mirror averaging, encoding and
-latent mode from one resolved `DiffusionSamplingConfig`: the user's values, else the model's own
-suggestion (`gaffer_nerf.guidance.model.suggested_sampling`). The denoising loop of `denoise_from` is the pipeline's
-(same UNet input `[z_t, E(x), E(E_H), E(E_L)]`, same CFG with the CLIP embedding and the three
-conditioning latents zeroed in the unconditional branch), started at an intermediate noise level t*
-instead of pure noise (SDEdit; paper §3.3, Eq. 3). A test checks that started from pure noise it equals
-`RelightPipeline.sample` to float precision.
+Built on gaffer-diffusion's public API only: the pipeline samples (`RelightPipeline.sample` for
+Stage 1's relit views, `RelightPipeline.denoise_from` for Stage 2's targets from an intermediate
+noise level t*, SDEdit, paper §3.3 Eq. 3) and predicts noise (`RelightPipeline.predict_noise`, SDS),
+with the same loop, classifier-free guidance and decoding as `gaffer-diffusion relight`.
+`DiffusionGuide` adds what is 3D's own: the views' framing (`guidance.framing`), per-view seeds, the
+mirror mean over encoded views, the t* schedule and the SDS gradient. Every path takes its steps,
+guidance, averaging, encoding and latent mode from one resolved `DiffusionSamplingConfig`: the user's
+values over the model's own (`RelightPipeline.default_sampling`).
 """
 
 import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, TypeVar, cast
+from typing import TypeVar
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from jaxtyping import Float
 from torch import Tensor
 
 from gaffer_diffusion import (
     DefaultSampling,
     EncodedConditions,
+    LatentMode,
     LightingMaps,
     RelightingConditions,
     RelightPipeline,
     SamplingConfig,
-    SchedulerConfig,
     lighting_from_envmap,
-    make_scheduler,
 )
-from gaffer_diffusion.models.model import vae_decode, vae_posterior
 from gaffer_envmap import EnvironmentMap
 from gaffer_nerf.configs import CompatName, DiffusionSamplingConfig, Stage2Config
 from gaffer_nerf.errors import ConfigError, ShapeError
@@ -59,22 +55,6 @@ def _resolved(value: _T | None, name: str) -> _T:
             "suggestion (`DiffusionSamplingConfig.resolved`) first."
         )
     return value
-
-
-def _ddim_scheduler(config: SchedulerConfig) -> DDIMScheduler:
-    """`make_scheduler("ddim", config)`, narrowed from the union of every scheduler it can make."""
-    sched = make_scheduler("ddim", config)
-    if not isinstance(sched, DDIMScheduler):
-        raise TypeError(f'make_scheduler("ddim") returned a {type(sched).__name__}')
-    return sched
-
-
-def _ddim_step(sched: DDIMScheduler, eps: Tensor, t: Tensor, z: Tensor) -> Tensor:
-    """One deterministic DDIM step z_t -> z_{t-1} (`sched.step(..., eta=0).prev_sample`)."""
-    # diffusers annotates `timestep` as int; it takes the schedule's 0-d tensors
-    out = sched.step(eps, cast(int, t), z, eta=0.0)
-    # a DDIMSchedulerOutput (return_dict=True, the default); the bare tuple never comes here
-    return out[0] if isinstance(out, tuple) else out.prev_sample
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -308,62 +288,6 @@ class DiffusionGuide:
                 callback(idx[-1] + 1, v)
         return torch.cat(out)
 
-    def _timesteps(self, t_frac: float) -> tuple[DDIMScheduler, Tensor]:
-        """The scheduler and the DDIM timesteps Stage 2 runs from t*.
-
-        The steps of the model's `num_inference_steps` schedule at or below t*; when it has none
-        there (a few-step model such as gaffer-tiny, whose one step is at t = 999), one DDIM step
-        from t* itself (never from above t*, which would discard the render).
-        """
-        sched = _ddim_scheduler(self.model.config.scheduler)
-        steps = _resolved(self.sampling.num_inference_steps, "num_inference_steps")
-        sched.set_timesteps(steps, device=self.pipeline.device)
-        ts = sched.timesteps
-        limit = t_frac * sched.config["num_train_timesteps"]
-        below = ts[ts <= limit]
-        if below.numel() > 0:
-            return sched, below
-        start = max(1, round(limit))  # every schedule step lies above t*
-        return sched, torch.tensor([start], dtype=ts.dtype, device=ts.device)
-
-    def _eps(self, z: Tensor, t: Tensor, enc: EncodedConditions, guidance: float) -> Tensor:
-        """CFG noise prediction, as `RelightPipeline`: uncond zeroes CLIP and the 3 latents."""
-        cond = enc.concat_latents()  # [B, 12, h, w]  E(x), E(E_H), E(E_L)
-        ctx = enc.clip_embeds  # [B, 1, D]
-        if guidance == 1.0:
-            return self.model.unet(torch.cat([z, cond], dim=1), t, encoder_hidden_states=ctx).sample
-        z_in = torch.cat([z, z])
-        unet_in = torch.cat(
-            [z_in, torch.cat([cond, torch.zeros_like(cond)])], dim=1
-        )  # [2B, 16, h, w]
-        ctx_in = torch.cat([ctx, torch.zeros_like(ctx)])
-        eps_c, eps_u = self.model.unet(unet_in, t, encoder_hidden_states=ctx_in).sample.chunk(2)
-        return eps_u + guidance * (eps_c - eps_u)
-
-    def encode_image(
-        self,
-        images: Float[Tensor, "B 3 R R"],
-        encoded: EncodedConditions,
-        *,
-        mode: str = "mode",
-        generator: torch.Generator | None = None,
-    ) -> Float[Tensor, "B 4 h w"]:
-        """The diffusion latent z_0 of images in [0, 1] (differentiable w.r.t. `images`): E(x) x
-        0.18215 for the paper's model; E(x) - E(input) (scaled) for a residual one such as gaffer-tiny,
-        whose input latents `encoded` holds (`NeuralGafferModel.diffusion_target`)."""
-        x = (images * 2.0 - 1.0).to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-        dist = vae_posterior(self.model.vae, x)
-        z = dist.mode() if mode == "mode" else dist.sample(generator=generator)
-        return self.model.diffusion_target(z, encoded.image_latents.to(z))
-
-    def decode(
-        self, z: Float[Tensor, "B 4 h w"], encoded: EncodedConditions
-    ) -> Float[Tensor, "B 3 R R"]:
-        """Images in [0, 1] from diffusion latents (as the pipeline decodes)."""
-        raw = self.model.decodable_latents(z, encoded.image_latents.to(z))
-        x = vae_decode(self.model.vae, raw)
-        return (x.float() / 2.0 + 0.5).clamp(0.0, 1.0)
-
     @torch.no_grad()
     def denoise_from(
         self,
@@ -372,21 +296,20 @@ class DiffusionGuide:
         t_frac: float,
         *,
         generator: torch.Generator | None = None,
-        encode_mode: str = "mode",
+        encode_mode: LatentMode = "mode",
         noise: Tensor | None = None,
         mirrored: EncodedConditions | None = None,
     ) -> Float[Tensor, "B 3 R R"]:
-        """Stage 2's target x_relit(t*): encode, noise to t*, DDIM-denoise with CFG, decode (Eq. 3).
-
-        With `average_samples` K the mean of K noises; with `mirror_average` also the mirrored
-        render under `mirrored` (same noise), flipped back and averaged.
+        """Stage 2's target x_relit(t*) (Eq. 3): `RelightPipeline.denoise_from` with the resolved
+        sampling (K noises averaged with `average_samples`; with `mirror_average` also the mirrored
+        render under `mirrored`, same noise, flipped back and averaged).
 
         Args:
             images: rendered views in [0, 1] at the model resolution.
             encoded: their views' conditioning (input photo, target lighting).
-            t_frac: t* as a fraction of the training timesteps (see `_timesteps`).
-            generator: RNG for the noise (CPU generator).
-            encode_mode: VAE posterior "mode" or "sample".
+            t_frac: t* as a fraction of the training timesteps.
+            generator: RNG for the posterior sample and the noise (CPU generator).
+            encode_mode: VAE posterior "mode" or "sample" for the renders.
             noise: explicit `[B * K, 4, h, w]` noise (item-major) instead of drawing it.
             mirrored: the views' mirrored conditioning (`ViewConditions.mirrored`); needed with
                 `mirror_average`.
@@ -396,48 +319,16 @@ class DiffusionGuide:
         """
         if images.ndim != 4 or images.shape[1] != 3:
             raise ShapeError("images", tuple(images.shape), "[B, 3, R, R]")
-        mirror = self._mirrored(mirrored, "denoise_from")
-        b, k = images.shape[0], int(self.sampling.average_samples or 1)
-        dev, dt = self.pipeline.device, self.pipeline.dtype
-        enc = encoded.to(device=dev, dtype=dt).repeat_interleave(k)
-        x = images.repeat_interleave(k, dim=0)
-        if mirror is not None:
-            enc = EncodedConditions.cat([enc, mirror.to(device=dev, dtype=dt).repeat_interleave(k)])
-            x = torch.cat([x, x.flip(-1)])
-        sched, ts = self._timesteps(t_frac)
-        z0 = self.encode_image(x, enc, mode=encode_mode, generator=generator)
-        if noise is None:
-            noise = torch.randn((b * k, *z0.shape[1:]), generator=generator, dtype=torch.float32)
-        if mirror is not None:
-            noise = torch.cat([noise, noise])
-        noise = noise.to(device=z0.device, dtype=z0.dtype)
-        z = sched.add_noise(z0, noise, _int_tensor(ts[:1].repeat(z0.shape[0])))
-        out = self._ddim(sched, z, ts, enc)
-        if mirror is not None:
-            out = (out[: b * k] + out[b * k :].flip(-1)) / 2.0
-        return out.unflatten(0, (b, k)).mean(dim=1)
-
-    def _ddim(self, sched: DDIMScheduler, z: Tensor, ts: Tensor, enc: EncodedConditions) -> Tensor:
-        g = float(_resolved(self.sampling.guidance_scale, "guidance_scale"))
-        for t in ts:
-            # diffusers annotates `timestep` as int; it takes the schedule's 0-d tensors
-            eps = self._eps(sched.scale_model_input(z, cast(int, t)), t, enc, g)
-            z = _ddim_step(sched, eps, t, z)
-        return self.decode(z, enc)
-
-    @torch.no_grad()
-    def sample_from_noise(
-        self, encoded: EncodedConditions, noise: Float[Tensor, "B 4 h w"]
-    ) -> Float[Tensor, "B 3 R R"]:
-        """The full schedule from pure noise through this class's loop (the reference-twin check)."""
-        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-        sched, _ = self._timesteps(1.0)
-        ts = sched.timesteps
-        z = (
-            noise.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-            * sched.init_noise_sigma
+        return self.pipeline.denoise_from(
+            images,
+            t_frac,
+            encoded,
+            self.sampling_config(),
+            generator=generator,
+            latent_mode=encode_mode,
+            noise=noise,
+            mirrored=self._mirrored(mirrored, "denoise_from"),
         )
-        return self._ddim(sched, z, ts, enc)
 
     def sds_loss(
         self,
@@ -475,19 +366,19 @@ class DiffusionGuide:
         config: Stage2Config,
         generator: torch.Generator | None,
     ) -> Tensor:
-        enc = encoded.to(device=self.pipeline.device, dtype=self.pipeline.dtype)
-        sched = _ddim_scheduler(self.model.config.scheduler)
-        n_train = int(sched.config["num_train_timesteps"])
+        pipe = self.pipeline
+        enc = encoded.to(device=pipe.device, dtype=pipe.dtype)
+        n_train = pipe.num_train_timesteps
         lo, hi = config.sds_t_range
         t = torch.randint(int(lo * n_train), int(hi * n_train) + 1, (1,), generator=generator)
-        t = t.to(self.pipeline.device)
-        z0 = self.encode_image(images, enc, mode=config.encode_mode, generator=generator)
+        t = t.to(pipe.device)
+        z0 = pipe.encode_images(images, enc, latent_mode=config.encode_mode, generator=generator)
         noise = torch.randn(z0.shape, generator=generator, dtype=torch.float32).to(z0)
         with torch.no_grad():
-            z_t = sched.add_noise(z0.detach(), noise, _int_tensor(t.repeat(z0.shape[0])))
-            pred = self._eps(z_t, t, enc, self.sds_guidance(config))
-            alpha_bar = sched.alphas_cumprod.to(z0.device)[t].to(z0.dtype)
-            eps = _as_epsilon(pred, z_t, alpha_bar, self.model.config.scheduler.prediction_type)
+            z_t = pipe.add_noise(z0.detach(), noise, t.repeat(z0.shape[0]))
+            guidance = self.sds_guidance(config)
+            eps = pipe.predict_noise(z_t, t, enc, guidance_scale=guidance, as_epsilon=True)
+            alpha_bar = pipe.alpha_bar(t).to(z0.dtype)
             grad = config.sds_weight * (1.0 - alpha_bar) * (eps - noise)
             grad = self._zero_non_finite(grad, int(t))
         target = (z0 - grad).detach()
@@ -510,24 +401,3 @@ class DiffusionGuide:
                 t,
             )
         return torch.where(finite, grad, torch.zeros_like(grad))
-
-
-if TYPE_CHECKING:
-    _IntTensor = torch.IntTensor
-else:  # at run time an int64 tensor: no tensor is an instance of the legacy class (see below)
-    _IntTensor = Tensor
-
-
-def _int_tensor(timesteps: Tensor) -> _IntTensor:
-    """`timesteps` as diffusers' `add_noise` annotates them: the legacy `torch.IntTensor` class, which
-    no tensor is an instance of (it takes any integer tensor; the schedule's are int64)."""
-    return cast(torch.IntTensor, timesteps)
-
-
-def _as_epsilon(pred: Tensor, z_t: Tensor, alpha_bar: Tensor, prediction_type: str) -> Tensor:
-    """The UNet's output as a noise estimate, whatever it predicts (SDS needs eps_hat)."""
-    if prediction_type == "v_prediction":  # v = sqrt(abar) eps - sqrt(1 - abar) z_0
-        return alpha_bar.sqrt() * pred + (1.0 - alpha_bar).sqrt() * z_t
-    if prediction_type == "sample":  # z_t = sqrt(abar) z_0 + sqrt(1 - abar) eps
-        return (z_t - alpha_bar.sqrt() * pred) / (1.0 - alpha_bar).sqrt()
-    return pred
