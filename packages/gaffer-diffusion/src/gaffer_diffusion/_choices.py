@@ -32,10 +32,15 @@ PrepareCompat = Compat
 The same two modes, with the same meaning (gaffer's corrected pipeline or the authors' bit for bit), as
 the lighting encoding: `gaffer_envmap.compat_mode.Compat` (issue 14), not spelled out again."""
 
-SchedulerName = Literal["ddim", "dpmsolver++", "unipc"]
-"""Sampler names accepted by `make_scheduler` and the pipeline."""
+SchedulerName = Literal["ddim", "dpmpp-2m", "unipc", "dpmsolver++"]
+"""Sampler names accepted by `make_scheduler` and the pipeline: the paper's DDIM, DPM-Solver++ (2M),
+UniPC; "dpmsolver++" is the earlier spelling of "dpmpp-2m" (the same sampler)."""
 
-SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmsolver++", "unipc")
+SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmpp-2m", "unipc", "dpmsolver++")
+
+MULTISTEP_SCHEDULERS: tuple[SchedulerName, ...] = ("dpmpp-2m", "unipc", "dpmsolver++")
+"""The samplers that reuse earlier steps' predictions (second order): they need 2 steps or more and
+take no DDIM `eta` (issue 35)."""
 
 LatentMode = Literal["mode", "sample"]
 """How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""

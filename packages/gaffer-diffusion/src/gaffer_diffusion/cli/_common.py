@@ -123,10 +123,10 @@ def _runtime(args: argparse.Namespace) -> RuntimeConfig:
 
 
 def _check_autocast(args: argparse.Namespace) -> None:
-    if args.autocast and args.dtype == "float32":
+    if args.autocast and args.dtype in ("float32", "auto"):
         raise ConfigError(
-            "`--autocast` runs the UNet in lower precision: add `--dtype float16` (the authors') or "
-            "`--dtype bfloat16`."
+            f"`--autocast` with `--dtype {args.dtype}`: autocast runs the UNet in a lower precision "
+            "named by --dtype: add `--dtype float16` (the authors') or `--dtype bfloat16`."
         )
 
 

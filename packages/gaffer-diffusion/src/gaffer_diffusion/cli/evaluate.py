@@ -186,7 +186,10 @@ def _evaluate_dataset(args: argparse.Namespace) -> int:
     if args.markdown:
         args.markdown.write_text(result.to_markdown() + "\n")
     print(result.to_markdown())
-    print(f"\n{len(pairs)} pairs in {result.seconds:.1f} s: {result.summary()}")
+    print(
+        f"\n{len(pairs)} pairs in {result.seconds:.1f} s ({pipe.dtype_choice.note()}): "
+        f"{result.summary()}"
+    )
     return 0
 
 

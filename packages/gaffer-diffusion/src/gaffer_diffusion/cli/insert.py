@@ -394,5 +394,5 @@ def _insert(args: argparse.Namespace) -> int:
         read.note,
         f"{seconds:.2f} s",
     ]
-    print(f"wrote {args.out}; " + "; ".join(n for n in notes if n))
+    print(f"wrote {args.out}; " + "; ".join(n for n in (*notes, pipe.dtype_choice.note()) if n))
     return 0

@@ -156,7 +156,14 @@ def _relight(args: argparse.Namespace) -> int:
                 frames.append(_finish(args, prepared, relit, args.envmap, (batch.start + j, n)))
             bar.update(batch.stop - batch.start)
     notes = "; ".join(
-        x for x in (_size_note(args, frames[0]), _background_note(args), mask_note) if x
+        x
+        for x in (
+            _size_note(args, frames[0]),
+            _background_note(args),
+            mask_note,
+            pipe.dtype_choice.note(),
+        )
+        if x
     )
     if args.turntable > 1:
         video = _write_turntable(args, stem, frames, read)
@@ -283,7 +290,8 @@ def _relight_grid(args: argparse.Namespace) -> int:
             bar.update(len(chunk))
     print(
         f"wrote {written} images ({len(loaded)} inputs x {len(lights)} maps) under {args.out}; "
-        f"{_background_note(args)}" + "".join(f"; {n}" for n in notes[:1])
+        f"{_background_note(args)}; {pipe.dtype_choice.note()}"
+        + "".join(f"; {n}" for n in notes[:1])
     )
     if failed:
         print(f"error: {len(failed)} failed (the others were written):", file=sys.stderr)

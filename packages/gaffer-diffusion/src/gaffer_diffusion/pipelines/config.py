@@ -8,7 +8,7 @@ import torch
 
 from gaffer_diffusion.conditioning import LatentMode
 from gaffer_diffusion.errors import ConfigError
-from gaffer_diffusion.schedulers import SCHEDULERS, SchedulerName
+from gaffer_diffusion.schedulers import MULTISTEP_SCHEDULERS, SCHEDULERS, SchedulerName
 
 NonFinitePolicy = Literal["raise", "retry_fp32"]
 """What to do when sampling yields NaN/Inf: raise `NonFiniteOutputError` (default) or rerun the affected
@@ -20,8 +20,10 @@ AttentionBackend = Literal["sdpa", "eager"]
 DtypeName = Literal["float32", "float16", "bfloat16"]
 
 if TYPE_CHECKING:
+    from gaffer_diffusion.runtime_dtype import DtypeRequest
+
     _SchedulerArg = SchedulerName
-    _DtypeArg = DtypeName
+    _DtypeArg = DtypeRequest
 else:  # at run time any str reaches `SamplingConfig` / `RuntimeConfig`, which refuse an unknown one
     _SchedulerArg = _DtypeArg = str
 
@@ -33,8 +35,9 @@ class SamplingConfig:
     Attributes:
         num_inference_steps: denoising steps (50).
         guidance_scale: classifier-free guidance scale s (3.0); 1.0 skips the unconditional branch.
-        scheduler: "ddim", "dpmsolver++" or "unipc".
-        eta: DDIM eta (0: deterministic); ignored by the other samplers.
+        scheduler: "ddim" (the paper's), "dpmpp-2m" (DPM-Solver++ 2M; "dpmsolver++" is its earlier
+            spelling) or "unipc"; the multistep two need >= 2 steps and eta 0.
+        eta: DDIM eta (0: deterministic); refused with the multistep solvers.
         timestep_spacing: override the schedule's "leading" spacing (e.g. "trailing" for few steps).
         latent_mode: conditioning latents from the VAE posterior "mode" (default) or a "sample".
         nonfinite: what to do on NaN/Inf output (see `NonFinitePolicy`).
@@ -81,6 +84,17 @@ class SamplingConfig:
             raise ConfigError(
                 f"`scheduler` is {self.scheduler!r}; expected one of {list(SCHEDULERS)}."
             )
+        if self.scheduler in MULTISTEP_SCHEDULERS and self.num_inference_steps < 2:
+            raise ConfigError(
+                f"`scheduler` {self.scheduler!r} with {self.num_inference_steps} step: a multistep "
+                "solver needs >= 2 steps (15-25 is its range); pass `--steps 20`, or `--scheduler "
+                "ddim` for one step."
+            )
+        if self.scheduler in MULTISTEP_SCHEDULERS and self.eta != 0.0:
+            raise ConfigError(
+                f"`eta` is {self.eta} with `scheduler` {self.scheduler!r}: eta is DDIM's noise "
+                "level and the multistep solvers are deterministic; set eta=0 or use 'ddim'."
+            )
         if self.latent_mode not in ("mode", "sample"):
             raise ConfigError(
                 f"`latent_mode` is {self.latent_mode!r}; expected 'mode' or 'sample'."
@@ -111,7 +125,9 @@ class RuntimeConfig:
 
     Attributes:
         device: torch device string ("cpu", "cuda", "cuda:1").
-        dtype: "float32", "float16" or "bfloat16" for all networks.
+        dtype: "float32", "float16" or "bfloat16" for all networks, or "auto": bfloat16 on a CPU
+            with native bf16 for a large UNet, else float32 (`gaffer_diffusion.runtime_dtype`;
+            `RelightPipeline` resolves it and keeps the resolved config as its `runtime`).
         attention: "sdpa" (default) or "eager".
         compile: wrap the UNet in `torch.compile` (first call is slow; worth it for many calls).
         compile_mode: `torch.compile` mode, e.g. "max-autotune"; None for the default.
@@ -132,9 +148,14 @@ class RuntimeConfig:
     autocast: bool = False
 
     def __post_init__(self) -> None:
-        if self.dtype not in ("float32", "float16", "bfloat16"):
+        if self.dtype not in ("auto", "float32", "float16", "bfloat16"):
             raise ConfigError(
-                f"`dtype` is {self.dtype!r}; expected 'float32', 'float16' or 'bfloat16'."
+                f"`dtype` is {self.dtype!r}; expected 'auto', 'float32', 'float16' or 'bfloat16'."
+            )
+        if self.autocast and self.dtype == "auto":
+            raise ConfigError(
+                "`autocast` is on with `dtype` 'auto'; autocast needs the lower precision named: "
+                "pass dtype 'float16' (the authors') or 'bfloat16'."
             )
         if self.attention not in ("sdpa", "eager"):
             raise ConfigError(f"`attention` is {self.attention!r}; expected 'sdpa' or 'eager'.")
@@ -164,5 +185,10 @@ class RuntimeConfig:
                 return torch.float16
             case "bfloat16":
                 return torch.bfloat16
+            case "auto":
+                raise ConfigError(
+                    "`dtype` 'auto' names no torch dtype until it is resolved: use "
+                    "`RelightPipeline(model, runtime).runtime` or `runtime_dtype.resolve_dtype`."
+                )
             case _:
                 assert_never(self.dtype)

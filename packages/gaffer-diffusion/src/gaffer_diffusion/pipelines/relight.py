@@ -20,7 +20,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 import torch
-from diffusers.models.attention_processor import AttnProcessor, AttnProcessor2_0
 from diffusers.schedulers.scheduling_ddim import DDIMScheduler
 from diffusers.utils.torch_utils import randn_tensor
 from jaxtyping import Float
@@ -37,6 +36,7 @@ from gaffer_diffusion.conditioning import (
 from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode, vae_posterior
 from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
+from gaffer_diffusion.runtime_dtype import prepare_for_inference, resolve_runtime
 from gaffer_diffusion.schedulers import Sampler, make_scheduler
 from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling
 
@@ -114,16 +114,13 @@ class RelightPipeline:
         default_sampling: DefaultSampling | None = None,
         source: Path | None = None,
     ) -> None:
-        self.runtime = runtime or RuntimeConfig()
+        # `dtype="auto"` resolved for this model; `dtype_choice` says what and why (issue 35)
+        self.runtime, self.dtype_choice = resolve_runtime(model, runtime or RuntimeConfig())
         # read once (`load_pipeline` reads the model folder); callers only override it
         self.default_sampling: DefaultSampling = default_sampling or default_sampling_for(model)
         self.source = source
         self.model = model.to(device=self.runtime.device, dtype=self.runtime.weights_dtype).eval()
-        match self.runtime.attention:
-            case "sdpa":
-                self.model.unet.set_attn_processor(AttnProcessor2_0())
-            case "eager":
-                self.model.unet.set_attn_processor(AttnProcessor())
+        prepare_for_inference(self.model, self.runtime)  # SDPA; channels-last on the bf16 CPU path
         self._unet: Callable[..., object] = self.model.unet
         if self.runtime.compile:
             self._unet = torch.compile(
