@@ -5,7 +5,7 @@
         [--rank-tolerance DB]] [--device cuda]
     gaffer-nerf relight FIELD --data DATA --target-lighting K [--envmaps DIR | --envmap FILE|NAME]
         [--sanitize raise|strict|zero|clamp] [--checkpoint CKPT [--base-model DIR] | --diffusion-preset tiny]
-        --out RELIT [--preset paper|tiny] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
+        --out RELIT [--preset paper|tiny (default: the fit's)] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
         [--stage1-detail model|transfer [--stage1-transfer-radius R]]
         [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
@@ -51,6 +51,7 @@ from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
     EarlyStoppingConfig,
+    PresetName,
     RankSelectionConfig,
     fit_preset,
     relight_preset,
@@ -142,8 +143,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--preset",
         choices=("paper", "tiny"),
-        default="paper",
-        help="paper: Stage 1 2,500 + Stage 2 500 iterations (section 3.4); tiny: a smoke run",
+        default=None,
+        help="paper: Stage 1 2,500 + Stage 2 500 iterations (section 3.4); tiny: 100 + 6 at small "
+        "learning rates, for small fields (default: the preset the field was fitted with, recorded "
+        "in its fit_report.json; paper when none is recorded)",
     )
     r.add_argument(
         "--ablation",
@@ -323,7 +326,8 @@ def _fit(args: argparse.Namespace) -> int:
         scene.train, cfg, heldout=heldout, device=device, progress=not args.no_progress
     )
     # the field and its report: all three files or none (issue 36)
-    report = json.dumps(_jsonable(res.report), indent=2)
+    # the preset goes with the field: `relight` takes its own from it (issue 36)
+    report = json.dumps({"preset": args.preset, **_jsonable(res.report)}, indent=2)
     save_field(res.field, args.out, extra={"fit_report.json": report})
     rep = res.report
     print(
@@ -383,7 +387,7 @@ def _load_diffusion(args: argparse.Namespace, runtime: Any = None) -> Any:
 
 def _relight_config(args: argparse.Namespace) -> Any:
     """The preset with the command line's overrides (validated: a bad flag fails here, early)."""
-    cfg = relight_preset(args.preset, args.ablation)
+    cfg = relight_preset(_relight_preset_name(args)[0], args.ablation)
     for flag, value in (
         ("--stage1-iterations", args.stage1_iterations),
         ("--stage2-iterations", args.stage2_iterations),
@@ -425,6 +429,20 @@ def _relight_config(args: argparse.Namespace) -> Any:
     if given:  # DiffusionSamplingConfig refuses bad values naming the flag
         cfg = dataclasses.replace(cfg, diffusion=dataclasses.replace(cfg.diffusion, **given))
     return cfg
+
+
+def _relight_preset_name(args: argparse.Namespace) -> tuple[PresetName, str, str | None]:
+    """`relight`'s preset, why, and the fit's preset to record: `--preset`, else the field's fit's.
+
+    A tiny field relit with the paper's 2,500 + 500 steps at the paper's learning rates took 11
+    minutes and whitened the object (issue 36); a field takes the preset it was fitted with.
+    """
+    recorded = preflight.read_field_preset(args.field)
+    if args.preset is not None:
+        return args.preset, "--preset", recorded.name
+    if recorded.name == "paper" or recorded.name == "tiny":
+        return recorded.name, f"the field's fit, recorded in {recorded.recorded_in}", recorded.name
+    return "paper", f"no fit preset recorded in {args.field}: the paper's", None
 
 
 def _target_envmap(args: argparse.Namespace, scene: "MultiViewScene") -> Any:
@@ -540,6 +558,8 @@ def _relight(args: argparse.Namespace) -> int:
         f"{'whole views' if s.crop_fraction is None else f'object-centred crops ({s.crop_fraction:g})'}"
         f" ({whose})"
     )
+    preset, why, fit_preset = _relight_preset_name(args)
+    print(f"relight preset {preset} ({why})")
     perceptual = load_perceptual_loss(args.lpips_backbone, device=device)
     res = relight_field(
         field, scene.train, env, guide, cfg, perceptual, progress=not args.no_progress
@@ -547,6 +567,8 @@ def _relight(args: argparse.Namespace) -> int:
     report = json.dumps(
         _jsonable(
             {
+                "preset": preset,
+                "fit_preset": fit_preset,
                 "config": dataclasses.replace(cfg, diffusion=guide.sampling),
                 "model": {"name": loaded.name, "source": str(loaded.source)},
                 "report": res.report,
@@ -572,6 +594,11 @@ def _relight(args: argparse.Namespace) -> int:
         f"{r.stage1.seconds if r.stage1 else 0:.1f} s, stage 2 {r.stage2.seconds if r.stage2 else 0:.1f} s, "
         f"total {r.total_seconds:.1f} s -> {args.out}"
     )
+    if r.stage2 is not None and r.stage2.skipped_targets:
+        print(
+            f"stage 2 skipped {r.stage2.skipped_targets} of {r.stage2.iterations} steps whose "
+            "guidance target had lost the object (white or black where the render holds it)"
+        )
     return 0
 
 
@@ -646,7 +673,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     preflight.check_field_folder(args.field)
     info = preflight.check_data_folder(args.data)
     preflight.check_split(info, args.split)
-    if not args.plain:
+    if not args.plain and args.target_lighting is not None:  # None with --plain (checked above)
         preflight.check_lighting(info, "--target-lighting", args.target_lighting)
     if args.json is not None:
         preflight.check_output_file(args.json, "--json")

@@ -115,6 +115,39 @@ def check_split(info: DataFolderInfo, split: str) -> None:
         raise ConfigError(f"{info.root} has no `transforms_test.json`; pick --split train.")
 
 
+PRESETS = ("paper", "tiny")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FieldPreset:
+    """The preset a field was fitted with, as its folder records it (issue 36).
+
+    Attributes:
+        name: "paper" or "tiny"; None when the folder records none (a field from before issue 36).
+        recorded_in: the file it was read from (None: none).
+    """
+
+    name: str | None
+    recorded_in: Path | None
+
+
+def read_field_preset(field: Path) -> FieldPreset:
+    """The fit's preset recorded with a field: `fit_report.json`'s `preset` (written by `fit`), else
+    `relight_report.json`'s `fit_preset` (written by `relight`, carried from its input field).
+
+    A missing, unreadable or unknown value reads as none (the caller says so and picks a default).
+    """
+    for name, key in (("fit_report.json", "preset"), ("relight_report.json", "fit_preset")):
+        path = field / name
+        try:
+            value = json.loads(path.read_text(encoding="utf-8")).get(key)
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            continue
+        if value in PRESETS:
+            return FieldPreset(name=str(value), recorded_in=path)
+    return FieldPreset(name=None, recorded_in=None)
+
+
 def check_field_folder(field: Path, flag: str = "field") -> None:
     """A `fit` / `relight` output: `config.json` parses and names the class, the weights' header parses.
 

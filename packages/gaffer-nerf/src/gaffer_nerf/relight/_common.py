@@ -20,6 +20,8 @@ class StageReport:
         loss_kind: "l2" (Stage 1), "guidance" or "sds" (Stage 2).
         sds_non_finite: Stage 2 with the SDS loss: gradient values that were NaN or infinite and were
             zeroed (0 otherwise; see `DiffusionGuide.sds_non_finite`).
+        skipped_targets: Stage 2 with the guidance loss: steps whose target had lost the object
+            (faded to white or black where the render holds it) and were not taken (issue 36).
     """
 
     name: str
@@ -29,6 +31,7 @@ class StageReport:
     t_star: tuple[float, ...] = ()
     loss_kind: str = ""
     sds_non_finite: int = 0
+    skipped_targets: int = 0
 
 
 def appearance_optimizer(

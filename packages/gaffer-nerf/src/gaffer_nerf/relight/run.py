@@ -7,6 +7,10 @@
    the input views times the model's change of shading: `gaffer_nerf.relight.detail`).
 4. Stage 2 (unless ablated): refine with the guidance loss (or SDS) one full view per step.
 
+After each stage the relit field's training views are checked against what they were fitted to
+(`gaffer_nerf.relight.guard`): a white-out, black-out or NaN stops the run with
+`RelightDivergedError` before anything is returned or written.
+
 The input field is not modified: a deep copy is relit and returned.
 """
 
@@ -28,9 +32,10 @@ from gaffer_nerf.guidance.diffusion import DiffusionGuide, TargetLighting
 from gaffer_nerf.guidance.perceptual import PerceptualLoss
 from gaffer_nerf.relight._common import StageReport
 from gaffer_nerf.relight.detail import transfer_shading
+from gaffer_nerf.relight.guard import check_renders_follow_targets
 from gaffer_nerf.relight.stage1 import run_stage1
 from gaffer_nerf.relight.stage2 import run_stage2
-from gaffer_nerf.rendering import build_weight_cache
+from gaffer_nerf.rendering import SampleWeightCache, build_weight_cache, render_cached
 
 
 class NothingToRelightWarning(UserWarning):
@@ -121,6 +126,8 @@ def relight_field(
     Raises:
         ShapeError: when `relit_views` or `stage1_targets` does not match the training views.
         ConfigError: when both `relit_views` and `stage1_targets` are given.
+        RelightDivergedError: a stage left the training views' renders white, black or NaN where
+            the object is, against their targets (`gaffer_nerf.relight.guard`).
     """
     h, w = train.cameras.height, train.cameras.width
     if stage1_targets is not None:
@@ -167,9 +174,12 @@ def relight_field(
     encode_s = time.perf_counter() - t0
 
     relit_s, s1 = 0.0, None
+    reference = images.float()  # what the renders follow: Stage 1's targets, else the inputs
     if config.stage1 is not None and stage1_targets is not None:
-        targets_rgb = stage1_targets.float().permute(0, 2, 3, 1).reshape(-1, 3)
+        reference = stage1_targets.float()
+        targets_rgb = reference.permute(0, 2, 3, 1).reshape(-1, 3)
         s1 = run_stage1(out, cache, targets_rgb, config.stage1, generator=gen, progress=progress)
+        _check(out, cache, reference, "stage 1")
     elif config.stage1 is not None:
         if relit_views is None:
             t0 = time.perf_counter()
@@ -190,6 +200,8 @@ def relight_field(
             targets = transfer_shading(images, targets, alpha, config.stage1.transfer_radius_px)
         targets_rgb = targets.permute(0, 2, 3, 1).reshape(-1, 3)  # view-major, row-major rays
         s1 = run_stage1(out, cache, targets_rgb, config.stage1, generator=gen, progress=progress)
+        reference = targets
+        _check(out, cache, reference, "stage 1")
     s2 = None
     if config.stage2 is not None:
         s2 = run_stage2(
@@ -203,6 +215,7 @@ def relight_field(
             generator=gen,
             progress=progress,
         )
+        _check(out, cache, reference, "stage 2")
     used_perceptual = (
         config.stage2 is not None
         and config.stage2.loss == "guidance"
@@ -225,3 +238,20 @@ def relight_field(
         sampling_source=guide.suggested.source,
     )
     return RelightResult(field=out, relit_views=relit_views, report=report)
+
+
+@torch.no_grad()
+def _check(
+    field: TensoRFVM, cache: SampleWeightCache, reference: Tensor, after: str, chunk: int = 16384
+) -> None:
+    """Render every cached training ray and stop on a white-out, black-out or NaN (module doc)."""
+    v, _, h, w = reference.shape
+    rgb = torch.cat(
+        [
+            render_cached(field, cache, torch.arange(s, min(s + chunk, cache.num_rays)))
+            for s in range(0, cache.num_rays, chunk)
+        ]
+    ).cpu()
+    renders = rgb.reshape(v, h, w, 3).permute(0, 3, 1, 2)
+    alpha = (1.0 - cache.background).reshape(v, h, w).cpu()
+    check_renders_follow_targets(renders, reference.cpu(), alpha, after=after)
