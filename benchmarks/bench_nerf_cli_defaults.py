@@ -11,7 +11,7 @@ denoiser, 24 train + 6 test views, 2 lightings drawn from the pool {city, courty
 `relight` without `--preset` takes the preset the field was fitted with (here tiny, read from
 F/fit_report.json). With `--paper` the same relight also runs with `--preset paper` (the paper's
 2,500 + 500 steps at its learning rates on this small field: the case that whitened the object
-before the fix). Scores: object (alpha-masked) PSNR of the test views under the target lighting,
+before the fix), written to results/nerf_cli_defaults_paper.json. Scores: object (alpha-masked) PSNR of the test views under the target lighting,
 relit vs the unrelit field; seconds per command as the commands ran (wall time of the process).
 
 Run: `flock /tmp/gaffer-cpu.lock python benchmarks/bench_nerf_cli_defaults.py --threads 2
@@ -95,6 +95,7 @@ def main() -> None:
     threads = args.threads or 2
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     meta = common.machine(threads)
+    name_out = f"{NAME}_paper" if paper else NAME  # the --paper run is its own result file
     root = common.RUNS / f"{NAME}_data"
     t0 = time.perf_counter()
     data_root = _renders(root, env)
@@ -139,7 +140,7 @@ def main() -> None:
             )
         rows.append(row)
     payload = {
-        "name": NAME,
+        "name": name_out,
         "description": (__doc__ or "").split("\n\n")[0],
         "model": common.model_provenance(),
         "data": {
@@ -168,7 +169,7 @@ def main() -> None:
     ax.set_ylabel("object PSNR (dB)")
     ax.set_title("gaffer-nerf CLI defaults, 128 px")
     ax.legend()
-    for p in common.write_results(NAME, payload, fig, args.update_baseline):
+    for p in common.write_results(name_out, payload, fig, args.update_baseline):
         common.log(f"wrote {p}")
     print(json.dumps(payload["mean"]))
 
