@@ -29,6 +29,12 @@ from gaffer_diffusion._validate import check_image_batch, check_unit_range
 from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.errors import MissingDependencyError, ShapeError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.photo_encoding import (
+    PhotoEncodingCache,
+    clip_embedding,
+    one_photo,
+    with_photo,
+)
 from gaffer_envmap.compat_mode import Compat
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.poses import W2CBlender
@@ -264,13 +270,18 @@ def encode_conditions(
     *,
     latent_mode: LatentMode = "mode",
     generator: torch.Generator | Sequence[torch.Generator] | None = None,
+    photo_cache: "PhotoEncodingCache | None" = None,
 ) -> EncodedConditions:
     """Encode the input image and lighting maps (one batched VAE call) and the CLIP embedding.
+
+    A batch whose items are all one photo (one photo under many lightings) encodes the photo once;
+    with `photo_cache` the next batch of the same photo reuses it (`gaffer_diffusion.photo_encoding`).
 
     Args:
         model: the networks; inputs are cast to the VAE's / CLIP's device and dtype.
         conditions: `[B, 3, H, W]` image and maps in [0, 1], H = W = `model.config.resolution`.
         latent_mode: "mode" (default, deterministic) or "sample" (the authors' inference).
+        photo_cache: keeps the photo's encodings for the next call with the same photo.
         generator: RNG for `latent_mode="sample"`: one, or a list of B (one per item; item b's
             generator draws its image, HDR and LDR posterior noise in that order, so an item's
             latents do not depend on the rest of the batch).
@@ -291,10 +302,21 @@ def encode_conditions(
         )
     vae_param = next(model.vae.parameters())
     b = conditions.batch_size
-    # [3B, 3, H, W]  image, HDR, LDR in one batch, mapped [0, 1] -> [-1, 1] for the VAE
-    stacked = torch.cat([conditions.image, conditions.lighting.hdr, conditions.lighting.ldr], dim=0)
-    stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
-    posterior = vae_posterior(model.vae, stacked)
+    photo = None
+    if one_photo(conditions.image) and (b > 1 or photo_cache is not None):
+        cache = photo_cache or PhotoEncodingCache()
+        photo = cache.get(model, conditions.image[:1])
+        # [2B, 3, H, W]  HDR, LDR in one batch; the photo's posterior joins them as item 0..B-1
+        stacked = torch.cat([conditions.lighting.hdr, conditions.lighting.ldr], dim=0)
+        stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
+        posterior = with_photo(photo.posterior, vae_posterior(model.vae, stacked), b)
+    else:
+        # [3B, 3, H, W]  image, HDR, LDR in one batch, mapped [0, 1] -> [-1, 1] for the VAE
+        stacked = torch.cat(
+            [conditions.image, conditions.lighting.hdr, conditions.lighting.ldr], dim=0
+        )
+        stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
+        posterior = vae_posterior(model.vae, stacked)
     match latent_mode:
         case "mode":
             latents = posterior.mode()
@@ -309,12 +331,10 @@ def encode_conditions(
     # [3B, 4, h, w] -> three [B, 4, h, w]; raw posterior latents (no scaling factor, official impl. §1)
     image_latents, hdr_latents, ldr_latents = latents.split(b, dim=0)
 
-    enc_param = next(model.image_encoder.parameters())
-    pixels = clip_preprocess(
-        conditions.image.to(device=enc_param.device, dtype=enc_param.dtype) * 2.0 - 1.0,
-        model.config.image_encoder.image_size,
-    )
-    clip_embeds = model.image_encoder(pixel_values=pixels).image_embeds.unsqueeze(1)  # [B, 1, D]
+    if photo is not None:
+        clip_embeds = photo.clip_embeds.expand(b, -1, -1)  # [B, 1, D]
+    else:
+        clip_embeds = clip_embedding(model, conditions.image)  # [B, 1, D]
     hints = None
     if model.config.hints:
         hints = hints_for(

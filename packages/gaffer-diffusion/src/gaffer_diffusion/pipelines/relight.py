@@ -35,6 +35,7 @@ from gaffer_diffusion.conditioning import (
 )
 from gaffer_diffusion.errors import ConfigError, NonFiniteOutputError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode, vae_posterior
+from gaffer_diffusion.photo_encoding import PhotoEncodingCache
 from gaffer_diffusion.pipelines.config import RuntimeConfig, SamplingConfig
 from gaffer_diffusion.runtime_dtype import prepare_for_inference, resolve_runtime
 from gaffer_diffusion.schedulers import Sampler, make_scheduler
@@ -131,6 +132,7 @@ class RelightPipeline:
         if self.runtime.autocast:
             self._unet = _under_autocast(self._unet, self.device.type, self.runtime.torch_dtype)
         self._fp32: NeuralGafferModel | None = None
+        self._photo_cache = PhotoEncodingCache()
         self._noise_schedule: Sampler | None = None
 
     @property
@@ -162,7 +164,11 @@ class RelightPipeline:
             `EncodedConditions` on the pipeline's device and dtype.
         """
         return encode_conditions(
-            self.model, conditions, latent_mode=latent_mode, generator=generator
+            self.model,
+            conditions,
+            latent_mode=latent_mode,
+            generator=generator,
+            photo_cache=self._photo_cache,  # one photo, many lightings: encoded once (issue 35)
         )
 
     def initial_noise(

@@ -1,0 +1,108 @@
+"""The input photo's encodings (VAE posterior, CLIP embedding), computed once per photo (issue 35).
+
+Relighting one photo under many lightings (a folder of maps, the turntable's frames, a batch of seeds)
+repeats the same input image in every item; only the lighting maps differ. `encode_conditions` asks
+`photo_encoding` for the photo's VAE posterior and CLIP embedding: a batch whose items are all one
+photo encodes it once, and a `PhotoEncodingCache` (held by `RelightPipeline`) keeps it for the next
+batch of the same photo. On the paper-size model in float32 the photo's share of the conditioning
+encode is a third of the VAE call and all of CLIP (`benchmarks/results/diffusion_speed.json`).
+"""
+
+import hashlib
+from dataclasses import dataclass
+
+import torch
+from diffusers.models.autoencoders.vae import DiagonalGaussianDistribution
+from jaxtyping import Float
+from torch import Tensor
+
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.models.pixel import PixelPosterior
+
+Posterior = DiagonalGaussianDistribution | PixelPosterior
+
+
+def one_photo(images: Float[Tensor, "B 3 H W"]) -> bool:
+    """True when every item of the batch is the same image (an expanded tensor, or equal values)."""
+    if images.shape[0] < 2 or images.stride(0) == 0:
+        return True
+    return bool((images == images[:1]).all())
+
+
+def _key(photo: Tensor, model: NeuralGafferModel) -> tuple[int, str, str, str]:
+    """The photo's content and the networks it went through (their identity, device and dtype)."""
+    data = photo.detach().to("cpu", torch.float32).contiguous().numpy().tobytes()
+    digest = hashlib.blake2b(data, digest_size=16).hexdigest()
+    param = next(model.vae.parameters(), None) if hasattr(model.vae, "parameters") else None
+    where = f"{model.device}/{model.dtype}/{None if param is None else param.dtype}"
+    return (id(model), digest, where, str(tuple(photo.shape)))
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhotoEncoding:
+    """One photo's encodings: its VAE posterior (batch 1) and CLIP embedding `[1, 1, D]`."""
+
+    posterior: Posterior
+    clip_embeds: Float[Tensor, "1 1 D"]
+
+
+class PhotoEncodingCache:
+    """The last photo's `PhotoEncoding`, reused while the same photo comes again (one entry: a run
+    relights one photo at a time, and the entry's tensors are small)."""
+
+    def __init__(self) -> None:
+        self._key: tuple[int, str, str, str] | None = None
+        self._value: PhotoEncoding | None = None
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, model: NeuralGafferModel, photo: Tensor) -> PhotoEncoding:
+        """The encoding of `photo` `[1, 3, H, W]` in [0, 1], from the cache or computed now."""
+        key = _key(photo, model)
+        if key == self._key and self._value is not None:
+            self.hits += 1
+            return self._value
+        self.misses += 1
+        value = encode_photo(model, photo)
+        self._key, self._value = key, value
+        return value
+
+
+def clip_embedding(
+    model: NeuralGafferModel, images: Float[Tensor, "B 3 H W"]
+) -> Float[Tensor, "B 1 D"]:
+    """The CLIP image embedding `[B, 1, D]` of images in [0, 1] (`conditioning.clip_preprocess`)."""
+    from gaffer_diffusion.conditioning import clip_preprocess  # it imports this module
+
+    enc_param = next(model.image_encoder.parameters())
+    pixels = clip_preprocess(
+        images.to(device=enc_param.device, dtype=enc_param.dtype) * 2.0 - 1.0,
+        model.config.image_encoder.image_size,
+    )
+    return model.image_encoder(pixel_values=pixels).image_embeds.unsqueeze(1)
+
+
+@torch.no_grad()
+def encode_photo(model: NeuralGafferModel, photo: Float[Tensor, "1 3 H W"]) -> PhotoEncoding:
+    """The VAE posterior and CLIP embedding of one photo in [0, 1]."""
+    vae_param = next(model.vae.parameters(), None)
+    dtype = model.dtype if vae_param is None else vae_param.dtype
+    x = (photo * 2.0 - 1.0).to(device=model.device, dtype=dtype)
+    return PhotoEncoding(
+        posterior=vae_posterior(model.vae, x), clip_embeds=clip_embedding(model, photo)
+    )
+
+
+def with_photo(photo: Posterior, lighting: Posterior, batch: int) -> Posterior:
+    """One posterior of `[photo x batch, lighting (2 x batch)]`, as if the three had been encoded in
+    one VAE call: a posterior sample then draws each item's noise in the same order as before."""
+    if isinstance(photo, PixelPosterior) and isinstance(lighting, PixelPosterior):
+        return PixelPosterior(
+            torch.cat([photo.latents.expand(batch, -1, -1, -1), lighting.latents])
+        )
+    if isinstance(photo, DiagonalGaussianDistribution) and isinstance(
+        lighting, DiagonalGaussianDistribution
+    ):
+        params = photo.parameters.expand(batch, -1, -1, -1)
+        return DiagonalGaussianDistribution(torch.cat([params, lighting.parameters]))
+    raise TypeError(f"posteriors of two kinds: {type(photo).__name__}, {type(lighting).__name__}")
