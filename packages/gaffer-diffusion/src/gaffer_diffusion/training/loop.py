@@ -25,9 +25,9 @@ Non-finite loss or gradients never reach the weights: the step is skipped and co
 `TrainingDivergedError` raised.
 
 `train` orchestrates; each part lives in its own module: `objective` (the loss of one micro-batch),
-`step` (one optimiser step), `checkpointing` (resume point, save, restore), `tracking` (the metrics
-log, logged rows, progress bar), `validation` (validation during training), `sigterm`. Setting up the
-accelerator, the networks and the data stays here.
+`step` (one optimiser step), `checkpoint` (the folders; resume point, save, restore), `tracking`
+(the metrics log, logged rows, progress bar), `validation` (validation during training), `sigterm`.
+Setting up the accelerator, the networks and the data stays here.
 """
 
 import dataclasses
@@ -46,7 +46,7 @@ from gaffer_diffusion.errors import ConfigError, MissingDependencyError
 from gaffer_diffusion.models.build import build_model
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.training import checkpoint as ckpt
-from gaffer_diffusion.training.checkpointing import (
+from gaffer_diffusion.training.checkpoint import (
     prepare_checkpoint_root,
     restore_checkpoint,
     resume_point,
@@ -193,7 +193,7 @@ def _make_accelerator(config: TrainConfig) -> Any:
         mixed_precision = "no"
     # Several processes on a machine without a GPU (`torchrun`, `accelerate launch --multi_gpu`):
     # accelerate makes them one gloo group only when told `cpu`; without it each process found
-    # itself alone (DistributedType.NO) and N copies trained into the same output_dir (issue 36).
+    # itself alone (DistributedType.NO) and N copies trained into the same output_dir.
     on_cpu = world_size > 1 and not _gpu_available()
     acc = Accelerator(
         mixed_precision=mixed_precision,
@@ -408,7 +408,7 @@ def train(
             per_step_samples=cfg.train.batch_size * cfg.train.grad_accum * acc.num_processes,
         )
         # the next checkpoints describe this run (its process count and config), not the resumed
-        # one's: a 1 -> 2 process resume wrote world_size 1 before (issue 36)
+        # one's: a 1 -> 2 process resume wrote world_size 1 before
         state = dataclasses.replace(state, world_size=acc.num_processes, config=cfg.to_dict())
     start_step = state.step
 

@@ -40,7 +40,7 @@ class ItemRandom:
     Sample i's noise, timesteps, CFG-dropout draws, posterior sample and mirror flip come from its own
     generator (`sample_generator(seed, position_i)`), so they do not depend on how the global batch is
     split over processes and micro-batches: 2 processes of batch B train exactly as 1 process of
-    batch 2B (up to float rounding), and `--resume` may change the process count (issue 36).
+    batch 2B (up to float rounding), and `--resume` may change the process count.
     Every draw takes `per_item` values from each generator in turn and concatenates them, item-major.
     """
 
