@@ -12,7 +12,7 @@ the nodes (Ray's SPREAD strategy: each is a whole Blender render, so filling one
 them there). A node that dies mid-object fails its task with a system error; Ray re-runs it on a live
 node (`max_retries`), where `render_object` cleans the dead attempt's temporaries, keeps its finished
 images and writes the manifest last, so nothing half-written is ever published (tested on a simulated
-two-node cluster, issue 36).
+two-node cluster: tests/test_ray_multinode.py).
 
 Ray's usage statistics are switched off (`RAY_USAGE_STATS_ENABLED=0` before `ray.init`): a render farm
 run by this tool never phones home. A cluster started with `ray start` decides that for itself.
