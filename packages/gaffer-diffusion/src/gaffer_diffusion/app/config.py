@@ -1,7 +1,8 @@
 """`gaffer-diffusion app` options: one frozen `AppConfig`, checked before Gradio or torch models load.
 
-Safe defaults (issue 19): the server binds 127.0.0.1 unless `--host` is given, uploads and image sides
-are bounded, and one relighting job runs at a time behind a bounded queue.
+Safe defaults (issue 19): the server binds 127.0.0.1 unless `--host` is given, uploads, image sides and
+pixel counts are bounded, one relighting job runs at a time behind a bounded queue (a request beyond it
+is refused, not buffered), and uploaded files older than `--cache-max-age` are deleted (issue 36).
 """
 
 import argparse
@@ -44,10 +45,14 @@ class AppConfig:
         threads: torch CPU threads, or None for torch's default.
         max_upload_mb: largest accepted upload, per file (Gradio refuses bigger ones in the page).
         max_image_side: largest accepted side of an uploaded photo or environment map, in pixels.
+        max_megapixels: largest accepted photo or mask, in millions of pixels (width x height): a
+            relight holds several float copies of the photo at full size, so memory follows it.
         queue_size: relight/turntable requests that may wait behind the running one.
         max_frames: most turntable frames one request may ask for.
         max_turntable_side: longest side of a full-size turntable's frames, pixels: a larger photo
             is shrunk to it before its frames are pasted back (a single relight is never shrunk).
+        cache_max_age_s: uploads and results older than this many seconds are deleted while the
+            server runs (checked every `cache_sweep_s`); everything goes when it stops.
     """
 
     host: str = "127.0.0.1"
@@ -59,9 +64,11 @@ class AppConfig:
     threads: int | None = None
     max_upload_mb: float = 20.0
     max_image_side: int = 4096
+    max_megapixels: float = 16.8
     queue_size: int = 16
     max_frames: int = 48
     max_turntable_side: int = 512
+    cache_max_age_s: int = 3600
 
     def __post_init__(self) -> None:
         if not 0 < self.port < 65536:
@@ -79,6 +86,14 @@ class AppConfig:
             raise ConfigError(f"`--max-upload-mb` is {self.max_upload_mb}; expected > 0, e.g. 20.")
         if self.max_image_side < 64:
             raise ConfigError(f"`--max-image-side` is {self.max_image_side}; expected >= 64.")
+        if not (math.isfinite(self.max_megapixels) and self.max_megapixels > 0):
+            raise ConfigError(
+                f"`--max-image-megapixels` is {self.max_megapixels}; expected > 0, e.g. 16.8."
+            )
+        if self.cache_max_age_s < 1:
+            raise ConfigError(
+                f"`--cache-max-age` is {self.cache_max_age_s}; expected >= 1 second, e.g. 3600."
+            )
         if self.queue_size < 1:
             raise ConfigError(f"`--queue-size` is {self.queue_size}; expected >= 1.")
         if self.max_frames < 2:
@@ -92,6 +107,16 @@ class AppConfig:
     def max_upload_bytes(self) -> int:
         """`max_upload_mb` in bytes (Gradio's `max_file_size`)."""
         return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def max_image_pixels(self) -> int:
+        """`max_megapixels` as a pixel count."""
+        return int(self.max_megapixels * 1_000_000)
+
+    @property
+    def cache_sweep_s(self) -> int:
+        """How often old cached files are looked for: a quarter of their lifetime, at most a minute."""
+        return max(1, min(60, self.cache_max_age_s // 4))
 
 
 def add_app_arguments(p: argparse.ArgumentParser) -> None:
@@ -126,6 +151,18 @@ def add_app_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         default=4096,
         help="largest side of an uploaded photo or environment map, pixels (default 4096)",
+    )
+    p.add_argument(
+        "--max-image-megapixels",
+        type=float,
+        default=16.8,
+        help="largest photo or mask, millions of pixels (default 16.8, i.e. 4096x4096)",
+    )
+    p.add_argument(
+        "--cache-max-age",
+        type=int,
+        default=3600,
+        help="delete uploads and results older than this many seconds while serving (default 3600)",
     )
     p.add_argument(
         "--queue-size",
@@ -186,6 +223,8 @@ def config_from_args(args: argparse.Namespace) -> AppConfig:
         threads=args.threads,
         max_upload_mb=args.max_upload_mb,
         max_image_side=args.max_image_side,
+        max_megapixels=args.max_image_megapixels,
+        cache_max_age_s=args.cache_max_age,
         queue_size=args.queue_size,
         max_frames=args.max_frames,
         max_turntable_side=args.max_turntable_side,

@@ -435,6 +435,11 @@ class Engine:
                 f"The {what} is {w}x{h}; the app takes images up to {self.config.max_image_side} px "
                 "on a side (`--max-image-side`). Downscale it first."
             )
+        if w * h > self.config.max_image_pixels:
+            raise InputValueError(
+                f"The {what} is {w}x{h} ({w * h / 1e6:.1f} megapixels); the app takes up to "
+                f"{self.config.max_megapixels:g} (`--max-image-megapixels`). Downscale it first."
+            )
 
     def relight(
         self,

@@ -45,6 +45,8 @@ def serve(config: AppConfig) -> int:
     # Gradio reads these when imported: no telemetry or version check, its cache inside our folder.
     os.environ["GRADIO_ANALYTICS_ENABLED"] = "False"
     os.environ["GRADIO_TEMP_DIR"] = str(root / "gradio")
+    # torch's compiler cache defaults to $TMPDIR/torchinductor_$USER and outlived the server (issue 36)
+    os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(root / "torchinductor"))
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         _import_gradio()
@@ -52,13 +54,26 @@ def serve(config: AppConfig) -> int:
             import torch
 
             torch.set_num_threads(config.threads)
+        from PIL import Image
+
+        # Gradio opens every uploaded image with PIL before our handlers run; PIL's own bomb check
+        # (> 179 MP) then failed inside Gradio with a many-line message naming the server's paths.
+        # Uploads are only opened there (header read: every image input is a file path with
+        # image_mode None), and each handler checks width x height against `--max-image-side` and
+        # `--max-image-megapixels` before decoding (`Engine._check_image`), refusing in one line.
+        Image.MAX_IMAGE_PIXELS = None
         from gaffer_diffusion.app._ui import build_app
         from gaffer_diffusion.app.engine import Engine
 
         engine = Engine(config)
         engine.model(engine.model_labels[0])  # load the default model before the page opens
         demo = build_app(engine, root / "jobs")
+        # the queue is bounded: a request beyond `queue_size` waiting ones is refused at once
+        # ("Queue is full"), so a burst of clients cannot pile up uploads and memory
         demo.queue(max_size=config.queue_size, default_concurrency_limit=1)
+        # uploads and results live in Gradio's cache under our folder: delete those older than
+        # `cache_max_age_s` while serving (Gradio's sweeper), not only when the server stops
+        demo.delete_cache = (config.cache_sweep_s, config.cache_max_age_s)
         if config.host not in ("127.0.0.1", "localhost", "::1"):
             logger.warning(
                 "binding %s: anyone who can reach this machine can use the app (no authentication)",
