@@ -40,9 +40,15 @@ import gaffer_envmap as ge
 NAME = "envmap_preprocess"
 SIZE = 256
 SRC_HEIGHT = 256  # the authors pre-resized training maps to 512x256 (reference section 4.8)
-TARGET_DEFAULT_RATIO = 30.0  # issue: default mode >= 30x their maps/s on the 2-core CPU
-TARGET_COMPAT_RATIO = 5.0  # issue 18: compat mode >= 5x theirs
 TARGET_GPU_MAPS_PER_S = 100_000.0
+REGRESSION_GUARD = {"default_b1_ss2": 1.93, "default_best": 3.32, "compat_worst": 1.78}
+"""The ratios to theirs of the committed run of 2026-12-04 (results/envmap_preprocess.json, 2-core
+CPU), kept as a floor: the goal of 30x theirs is retired (issue 35: the power-exact default needs 8
+sub-samples per pixel, and encoding is not the bottleneck of any path, see `training_consumption`)."""
+GUARD_TOLERANCE = 0.75
+"""A run is below the guard when a ratio falls under 0.75x its floor (shared machines drift)."""
+TRAIN_CONFIG = common.REPO / "packages/gaffer-diffusion/configs/gaffer-tiny-stage4.json"
+"""gaffer-tiny's shipped training run (stage 4): its batch size and target lightings per sample."""
 POOL_MAPS = 64
 """Distinct (map, pose) inputs our runners cycle through per scenario (batches of up to 64 maps)."""
 DEFAULT_SUPERSAMPLE = 2  # encode_lighting's default (filter "conservative")
@@ -257,7 +263,9 @@ def measure(
     return rates, calls
 
 
-def plot(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool) -> Any:
+def plot(
+    results: list[dict[str, Any]], meta: dict[str, Any], quick: bool, consumed: float | None
+) -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -292,23 +300,24 @@ def plot(results: list[dict[str, Any]], meta: dict[str, Any], quick: bool) -> An
     )
     theirs = next(r for r in results if r["pipeline"] == "theirs")["maps_per_s"]["median"]
     ax.axvline(theirs, color="#555555", ls="--", lw=1)
-    ax.axvline(TARGET_DEFAULT_RATIO * theirs, color="#d62728", ls=":", lw=1.2)
     ax.text(theirs, len(results) - 0.4, " theirs", color="#555555", va="bottom", fontsize=8)
-    ax.text(
-        TARGET_DEFAULT_RATIO * theirs,
-        len(results) - 0.4,
-        " target: 30x theirs",
-        color="#d62728",
-        va="bottom",
-        fontsize=8,
-    )
+    if consumed is not None:
+        ax.axvline(consumed, color="#d62728", ls=":", lw=1.2)
+        ax.text(
+            consumed,
+            len(results) - 0.4,
+            " gaffer-tiny training consumes",
+            color="#d62728",
+            va="bottom",
+            fontsize=8,
+        )
     for yi, r in zip(y, results[::-1]):
         if r["pipeline"] not in ("theirs",):
             ax.text(
                 hi[yi] * 1.08, yi, f"{r['ratio_vs_theirs']['median']:.2f}x", va="center", fontsize=8
             )
-    xmax = max(hi.max(), TARGET_DEFAULT_RATIO * theirs) * 3
-    ax.set_xlim(min(lo.min(), theirs) / 2, xmax)
+    xmax = hi.max() * 3
+    ax.set_xlim(min(lo.min(), theirs, consumed or theirs) / 2, xmax)
     ax.set_ylim(-0.6, len(results) + 0.2)
     mode = " (--quick)" if quick else ""
     ax.set_title(
@@ -339,19 +348,65 @@ def readme_table(payload: dict[str, Any]) -> str:
         )
     t = payload["targets"]
     fid = payload["fidelity_theirs_vs_compat"]
+    e, g = t["encode_vs_training"], t["regression_guard"]
     lines += [
         "",
-        f"Targets: default ({t['default_vs_theirs']['setting']}) ≥ {t['default_vs_theirs']['target']:g}× "
-        f"theirs one map at a time: {t['default_vs_theirs']['one_map_at_a_time']:.2f}×, best batch "
-        f"{t['default_vs_theirs']['best_measured']:.2f}× (met: {t['default_vs_theirs']['met']}); "
-        f"compat ≥ {t['compat_vs_theirs']['target']:g}× theirs, worst measured "
-        f"{t['compat_vs_theirs']['worst_measured']:.2f}× (met: {t['compat_vs_theirs']['met']}); "
+        f"Encoding vs training: the default encoding does {e['encode_maps_per_s']:.1f} maps/s one "
+        f"at a time; a gaffer-tiny training step ({e['training']['envmaps_per_step']} target "
+        f"lightings, {e['training']['step_s']:.2f} s) consumes {e['training_envmaps_per_s']:.2f} "
+        f"maps/s: ratio {e['ratio']:.1f}. Regression guard (today's ratios to theirs, floors "
+        f"{g['floors']} at {g['tolerance']:g}x): measured {g['measured']}, met: {g['met']}; "
         f"GPU: {t['gpu_maps_per_s'].get('note', t['gpu_maps_per_s'].get('best_measured'))}. "
         f'Fidelity of the re-created authors\' pipeline against `compat="neural-gaffer"`: '
         f"{fid['uint8_values_differing']} of {fid['uint8_values_compared']:,} uint8 values differ "
         f"(max {fid['max_abs_difference_lsb']} LSB).",
     ]
     return "\n".join(lines)
+
+
+def training_consumption(threads: int) -> dict[str, Any]:
+    """Envmaps per second a gaffer-tiny training step consumes on this machine: its shipped batch
+    (`TRAIN_CONFIG`: views x target lightings, each target one encoded map) over the time of one
+    optimiser step of the shipped UNet (forward, backward, AdamW; bf16 autocast as the config asks
+    where the CPU has native bf16, float32 elsewhere, as the training code falls back). Only the UNet
+    step is timed (no data loading, hints or EMA), so the step is a lower bound and the rate an upper
+    bound: the encode/consume ratio errs low."""
+    import json
+
+    from gaffer_diffusion import load_pipeline
+    from gaffer_diffusion.runtime_dtype import detect_cpu_bf16
+
+    cfg = json.loads(TRAIN_CONFIG.read_text())
+    views, targets = int(cfg["train"]["batch_size"]), int(cfg["data"]["targets_per_sample"])
+    n = views * targets
+    unet = load_pipeline(None).model.unet.train()
+    size = int(unet.config.sample_size)
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(n, unet.config.in_channels, size, size, generator=g)
+    t = torch.randint(800, 1000, (n,), generator=g)
+    ctx = torch.randn(n, 1, unet.config.cross_attention_dim, generator=g)
+    bf16 = cfg["train"].get("mixed_precision") == "bf16" and detect_cpu_bf16().native
+    opt = torch.optim.AdamW(unet.parameters(), lr=float(cfg["optim"]["lr"]))
+
+    def step() -> None:
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            loss = unet(x, t, encoder_hidden_states=ctx).sample.float().pow(2).mean()
+        loss.backward()
+        opt.step()
+        opt.zero_grad(set_to_none=True)
+
+    torch.set_num_threads(threads)
+    step()  # warm-up
+    seconds = min(common.time_calls(step, 1) for _ in range(3))
+    return {
+        "config": str(TRAIN_CONFIG.relative_to(common.REPO)),
+        "envmaps_per_step": n,
+        "views_x_targets": [views, targets],
+        "precision": "bf16 autocast" if bf16 else "float32",
+        "step_s": round(seconds, 4),
+        "envmaps_per_s": n / seconds,
+        "timed": "UNet forward + backward + AdamW, min of 3 after a warm-up",
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -409,18 +464,39 @@ def main(argv: list[str] | None = None) -> int:
         "default", filter="conservative", supersample=DEFAULT_SUPERSAMPLE, batch_size=1
     )
     gpu_rates = [r["maps_per_s"]["median"] for r in results if r["device"] == "cuda"]
+    consumption = training_consumption(threads)
+    default_b1_rate = next(
+        r["maps_per_s"]["median"]
+        for r in results
+        if r["pipeline"] == "default"
+        and r["device"] == "cpu"
+        and not r["threads"]
+        and r["filter"] == "conservative"
+        and r["supersample"] == DEFAULT_SUPERSAMPLE
+        and r["batch_size"] == 1
+    )
+    measured = {
+        "default_b1_ss2": default_b1[0] if default_b1 else float("nan"),
+        "default_best": best_default,
+        "compat_worst": min(ratio("compat")),
+    }
     targets = {
-        "default_vs_theirs": {
-            "target": TARGET_DEFAULT_RATIO,
-            "setting": f"conservative, supersample {DEFAULT_SUPERSAMPLE} (encode_lighting's default)",
-            "one_map_at_a_time": round(default_b1[0], 3) if default_b1 else None,
-            "best_measured": round(best_default, 3),
-            "met": bool(default_b1) and default_b1[0] >= TARGET_DEFAULT_RATIO,
+        "encode_vs_training": {
+            "what": "envmaps encoded per second (default encoding, one map at a time) / envmaps "
+            "per second a gaffer-tiny training step consumes (its shipped batch x targets); 1 / "
+            "ratio is the share of a training step spent encoding with num_workers 0",
+            "encode_maps_per_s": round(default_b1_rate, 1),
+            "training_envmaps_per_s": round(consumption["envmaps_per_s"], 2),
+            "ratio": round(default_b1_rate / consumption["envmaps_per_s"], 1),
+            "training": consumption,
         },
-        "compat_vs_theirs": {
-            "target": TARGET_COMPAT_RATIO,
-            "worst_measured": round(min(ratio("compat")), 3),
-            "met": min(ratio("compat")) >= TARGET_COMPAT_RATIO,
+        "regression_guard": {
+            "floors": REGRESSION_GUARD,
+            "tolerance": GUARD_TOLERANCE,
+            "measured": {k: round(v, 3) for k, v in measured.items()},
+            "met": all(
+                measured[k] >= GUARD_TOLERANCE * floor for k, floor in REGRESSION_GUARD.items()
+            ),
         },
         "gpu_maps_per_s": (
             {
@@ -449,7 +525,7 @@ def main(argv: list[str] | None = None) -> int:
         "targets": targets,
         "scenarios": results,
     }
-    fig = plot(results, meta, args.quick)
+    fig = plot(results, meta, args.quick, consumption["envmaps_per_s"])
     written = common.write_results(NAME, payload, fig, args.update_baseline)
     if args.update_baseline:
         common.update_readme(NAME, readme_table(payload))
