@@ -27,6 +27,8 @@ _EXPORTS: dict[str, str] = {
     "MissingDependencyError": "errors",
     "ModelConfig": "configs",
     "NeuralGafferModel": "models",
+    "NeuralGafferPipeline": "pipelines.neural_gaffer",
+    "NeuralGafferPipelineOutput": "pipelines.neural_gaffer",
     "NonFiniteOutputError": "errors",
     "PAPER_SAMPLING": "suggested",
     "PRESETS": "configs",
@@ -103,6 +105,10 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         SamplingConfig,
         load_pipeline,
     )
+    from gaffer_diffusion.pipelines.neural_gaffer import (
+        NeuralGafferPipeline,
+        NeuralGafferPipelineOutput,
+    )
     from gaffer_diffusion.schedulers import SCHEDULERS, make_scheduler
     from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling, latent_mode_for
 
@@ -125,6 +131,8 @@ __all__ = [
     "MissingDependencyError",
     "ModelConfig",
     "NeuralGafferModel",
+    "NeuralGafferPipeline",
+    "NeuralGafferPipelineOutput",
     "NonFiniteOutputError",
     "RelightOutput",
     "RelightPipeline",

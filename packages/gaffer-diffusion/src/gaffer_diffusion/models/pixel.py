@@ -98,6 +98,17 @@ class PixelAutoencoder(torch.nn.Module):
             scaling_factor=float(scaling_factor),
         )
 
+    @property
+    def device(self) -> torch.device:
+        """Where the (empty) anchor parameter lives, as diffusers' `ModelMixin.device` (what a
+        `DiffusionPipeline` asks its components)."""
+        return self.anchor.device
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """The anchor parameter's dtype, as diffusers' `ModelMixin.dtype`."""
+        return self.anchor.dtype
+
     def encode(self, x: Float[Tensor, "N 3 H W"]) -> PixelEncoderOutput:
         """`[x, luminance(x)]`, `[N, 4, H, W]`, in the dtype of `x`."""
         luma = (x * self.luma.to(x.dtype)).sum(dim=1, keepdim=True)
