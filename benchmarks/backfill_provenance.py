@@ -13,7 +13,7 @@ still tell, and says where it comes from, without touching the measured numbers:
   no model, what it used.
 
     python benchmarks/backfill_provenance.py           # add or refresh the blocks
-    python benchmarks/backfill_provenance.py --check   # exit 1 when a file lacks one
+    python benchmarks/backfill_provenance.py --check   # exit 1 when a file fails to name them
 
 The test `tests/benchmarks/test_result_provenance.py` requires every file to name its commit, machine
 and (where one was used) its model's weights.
@@ -116,7 +116,8 @@ def tiny_at(commit: str) -> dict[str, Any]:
 
 
 def provenance(path: Path, doc: dict[str, Any]) -> dict[str, Any]:
-    machine = doc.get("machine") if isinstance(doc.get("machine"), dict) else {}
+    recorded = doc.get("machine")
+    machine: dict[str, Any] = recorded if isinstance(recorded, dict) else {}
     commit = machine.get("git_commit")
     block: dict[str, Any] = {"backfilled_by": BY}
     if commit:
@@ -168,6 +169,27 @@ def needs_block(doc: dict[str, Any]) -> bool:
     return not (names_machine(doc) and names_weights(doc))
 
 
+def states_model(doc: dict[str, Any]) -> bool:
+    """The file says in its own words which model it ran (`model` or `config.model`): enough for a
+    result of a random or no model; a trained model's weights are checked by `names_weights`."""
+    config = doc.get("config")
+    return bool(doc.get("model")) or (isinstance(config, dict) and bool(config.get("model")))
+
+
+def problems(name: str, doc: dict[str, Any]) -> list[str]:
+    """What a result file fails to name (empty: it names commit, machine and model)."""
+    block = doc.get("provenance") or {}
+    found = []
+    if not (names_machine(doc) or (block.get("code_commit") and block.get("machine"))):
+        found.append(f"{name}: no code commit and machine")
+    if name in TINY_AT_COMMIT and not (names_weights(doc) or isinstance(block.get("model"), dict)):
+        found.append(f"{name}: a trained gaffer-tiny's result without its weights' sha256")
+    if not (names_weights(doc) or isinstance(block.get("model"), dict) or states_model(doc)):
+        if Path(name).name not in NO_TRAINED_MODEL:
+            found.append(f"{name}: does not say which model (or none) it measured")
+    return found
+
+
 def result_files() -> list[Path]:
     return sorted(p for p in RESULTS.rglob("*.json") if "runs" not in p.relative_to(RESULTS).parts)
 
@@ -182,8 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         if not needs_block(doc):
             continue
         if args.check:
-            if "provenance" not in doc:
-                missing.append(str(path.relative_to(REPO)))
+            missing += problems(str(path.relative_to(REPO)), doc)
             continue
         doc["provenance"] = provenance(path, doc)
         # keep the file's own layout: per-pair files are written with indent 1, the rest with 2
@@ -191,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(json.dumps(doc, indent=indent) + "\n")
         print(f"{path.relative_to(REPO)}: {doc['provenance']['code_commit']}")
     for m in missing:
-        print(f"no provenance block: {m}")
+        print(m)
     return 1 if missing else 0
 
 
