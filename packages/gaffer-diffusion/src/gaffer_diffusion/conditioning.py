@@ -20,13 +20,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
 
 from gaffer_diffusion._choices import LatentMode as LatentMode  # the CLI's choices, torch-free
 from gaffer_diffusion._validate import check_image_batch, check_unit_range
-from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.errors import MissingDependencyError, ShapeError
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_diffusion.photo_encoding import (
@@ -35,6 +33,7 @@ from gaffer_diffusion.photo_encoding import (
     one_photo,
     with_photo,
 )
+from gaffer_diffusion.photo_encoding import clip_preprocess as clip_preprocess  # defined there
 from gaffer_envmap.compat_mode import Compat
 from gaffer_envmap.environment_map import EnvironmentMap
 from gaffer_envmap.poses import W2CBlender
@@ -233,34 +232,6 @@ class EncodedConditions:
     ) -> "EncodedConditions":
         """A copy on another device and/or dtype."""
         return self._map(lambda t: t.to(device=device, dtype=dtype))
-
-
-def clip_preprocess(
-    image_pm1: Float[Tensor, "B 3 H W"], image_size: int
-) -> Float[Tensor, "B 3 S S"]:
-    """The authors' CLIP preprocessing of an image in [-1, 1] (official implementation §1).
-
-    Bicubic resize to `image_size` (align_corners=True, no antialias), [-1, 1] -> [0, 1], then the OpenAI
-    mean/std normalisation.
-
-    Args:
-        image_pm1: `[B, 3, H, W]` image in [-1, 1].
-        image_size: CLIP input side length (224 for ViT-L/14).
-
-    Returns:
-        `[B, 3, image_size, image_size]` normalised pixel values.
-    """
-    x = F.interpolate(
-        image_pm1,
-        size=(image_size, image_size),
-        mode="bicubic",
-        align_corners=True,
-        antialias=False,
-    )
-    x = (x + 1.0) / 2.0
-    mean = torch.tensor(CLIP_MEAN, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
-    std = torch.tensor(CLIP_STD, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
-    return (x - mean) / std
 
 
 @torch.no_grad()

@@ -12,10 +12,12 @@ import hashlib
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from diffusers.models.autoencoders.vae import DiagonalGaussianDistribution
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion.configs import CLIP_MEAN, CLIP_STD
 from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_diffusion.models.pixel import PixelPosterior
 
@@ -68,12 +70,38 @@ class PhotoEncodingCache:
         return value
 
 
+def clip_preprocess(
+    image_pm1: Float[Tensor, "B 3 H W"], image_size: int
+) -> Float[Tensor, "B 3 S S"]:
+    """The authors' CLIP preprocessing of an image in [-1, 1] (official implementation §1).
+
+    Bicubic resize to `image_size` (align_corners=True, no antialias), [-1, 1] -> [0, 1], then the OpenAI
+    mean/std normalisation.
+
+    Args:
+        image_pm1: `[B, 3, H, W]` image in [-1, 1].
+        image_size: CLIP input side length (224 for ViT-L/14).
+
+    Returns:
+        `[B, 3, image_size, image_size]` normalised pixel values.
+    """
+    x = F.interpolate(
+        image_pm1,
+        size=(image_size, image_size),
+        mode="bicubic",
+        align_corners=True,
+        antialias=False,
+    )
+    x = (x + 1.0) / 2.0
+    mean = torch.tensor(CLIP_MEAN, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
+    std = torch.tensor(CLIP_STD, device=x.device, dtype=x.dtype).view(1, 3, 1, 1)
+    return (x - mean) / std
+
+
 def clip_embedding(
     model: NeuralGafferModel, images: Float[Tensor, "B 3 H W"]
 ) -> Float[Tensor, "B 1 D"]:
     """The CLIP image embedding `[B, 1, D]` of images in [0, 1] (`conditioning.clip_preprocess`)."""
-    from gaffer_diffusion.conditioning import clip_preprocess  # it imports this module
-
     enc_param = next(model.image_encoder.parameters())
     pixels = clip_preprocess(
         images.to(device=enc_param.device, dtype=enc_param.dtype) * 2.0 - 1.0,

@@ -18,13 +18,29 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, get_args
 
 if TYPE_CHECKING:
     import torch
 
     from gaffer_diffusion.models.model import NeuralGafferModel
-    from gaffer_diffusion.pipelines.config import RuntimeConfig
+
+
+class RuntimeConfig(Protocol):
+    """What this module reads of `gaffer_diffusion.pipelines.RuntimeConfig` (a protocol, so that the
+    pipelines, which import this module, are not imported back)."""
+
+    @property
+    def device(self) -> str: ...
+    @property
+    def dtype(self) -> Any: ...
+    @property
+    def attention(self) -> str: ...
+    @property
+    def autocast(self) -> bool: ...
+
+
+_Runtime = TypeVar("_Runtime", bound=RuntimeConfig)
 
 DtypeRequest = Literal["auto", "float32", "float16", "bfloat16"]
 """What `--dtype` accepts: `auto` resolves to one of the other three (`resolve_dtype`)."""
@@ -288,13 +304,12 @@ __all__ = [
 ]
 
 
-def resolve_runtime(
-    model: NeuralGafferModel, runtime: RuntimeConfig
-) -> tuple[RuntimeConfig, DtypeChoice]:
+def resolve_runtime(model: NeuralGafferModel, runtime: _Runtime) -> tuple[_Runtime, DtypeChoice]:
     """`runtime` with its dtype resolved for `model` (`resolve_dtype`, `auto` weighing the UNet's
     size), and the choice with its reason."""
     import dataclasses
 
     size = unet_parameter_count(model) if runtime.dtype == "auto" else None
     choice = resolve_dtype(runtime.dtype, runtime.device, unet_params=size)
-    return dataclasses.replace(runtime, dtype=choice.dtype), choice
+    resolved: Any = dataclasses.replace(runtime, dtype=choice.dtype)  # type: ignore[type-var]
+    return resolved, choice
