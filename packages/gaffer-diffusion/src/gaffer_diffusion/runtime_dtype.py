@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, get_args
+from typing import TYPE_CHECKING, Any, Literal, Protocol, TypeVar, get_args, runtime_checkable
 
 if TYPE_CHECKING:
     import torch
@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from gaffer_diffusion.models.model import NeuralGafferModel
 
 
+@runtime_checkable
 class RuntimeConfig(Protocol):
     """What this module reads of `gaffer_diffusion.pipelines.RuntimeConfig` (a protocol, so that the
     pipelines, which import this module, are not imported back)."""
