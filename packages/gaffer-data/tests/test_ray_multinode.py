@@ -180,11 +180,17 @@ def test_a_node_killed_mid_render_has_its_object_redone_elsewhere(
         raise box["error"]
     summary: RunSummary = box["summary"]
     assert summary.rendered == ("cube", "sphere") and summary.failed == ()
+    time.sleep(1.0)  # a straggler of the dead node would write now
+    _assert_same_render(local, out)
+    if worker_id_finished_first := set(dispatch.object_nodes.values()) - {head}:
+        # on a loaded machine the worker can publish its object between the in-progress check and
+        # the kill: then nothing was lost and there was nothing to redo (the bytes are checked above)
+        pytest.skip(
+            f"the worker finished its object before the kill landed ({worker_id_finished_first})"
+        )
     assert set(dispatch.object_nodes.values()) == {
         head
     }  # the dead node's object redone on the head
-    time.sleep(1.0)  # a straggler of the dead node would write now
-    _assert_same_render(local, out)
 
 
 def test_the_backend_switches_ray_usage_statistics_off(
