@@ -252,7 +252,6 @@ CASES: list[Case] = [
     _c(G, "insert-text-envmap", f"insert {INS} --envmap {{F}}/text.exr --out o.png",
        words="`--envmap`"),
     _c(G, "insert-truncated-envmap", f"insert {INS} --envmap {{F}}/truncated.exr --out o.png"),
-    _c(G, "insert-shadow-cycles", f"insert {INS} --shadow cycles --out o.png", words="`--shadow 2d`"),
     _c(G, "insert-key-light-nan", f"insert {INS} --key-light nan,30 --out o.png",
        words="`--key-light`"),
     _c(G, "insert-key-light-with-envmap", f"insert {INS} --envmap city --key-light 90,30 --out o.png",
