@@ -82,7 +82,7 @@ nitpick_ignore_regex = [
     # inventory that covers their internal module paths).
     (
         r"py:(class|obj|data|func|meth|attr|exc)",
-        r"(numpy|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging|jaxtyping|diffusers"
+        r"(numpy|np|torch|os|collections\.abc|pathlib|argparse|typing|PIL|logging|jaxtyping|diffusers"
         r"|transformers|safetensors|accelerate|tqdm|concurrent\.futures|subprocess|types|datetime)\..+",
     ),
     # `from torch import Tensor` annotations render as the bare name.
@@ -98,6 +98,9 @@ nitpick_ignore = [
         "py:class",
         "gaffer_envmap.atomic.T",
     ),  # a TypeVar: autodoc links it, but it has no page of its own
+    # The structural view of `gaffer_diffusion.pipelines.RuntimeConfig` that runtime_dtype reads (a
+    # Protocol, so that the pipelines are not imported back); users meet only the dataclass.
+    ("py:class", "gaffer_diffusion.runtime_dtype.RuntimeConfig"),
 ]
 
 # The `>>>` examples of the API docstrings run under pytest (`--doctest-modules`, in the module's own

@@ -42,11 +42,6 @@ def envmaps(tmp_path_factory) -> Path:
     return d
 
 
-@pytest.mark.xfail(
-    reason="known regression, open: after the photo-encoded-once change (issue 35) batched and "
-    "one-at-a-time outputs differ by up to 4 levels (was <= 1); to be found and fixed",
-    strict=False,
-)
 def test_relight_folder_x_envmaps_is_batched_and_batch_invariant(
     tmp_path, model_dir, envmaps, capsys
 ) -> None:

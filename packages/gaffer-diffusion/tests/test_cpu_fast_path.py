@@ -12,6 +12,7 @@ from gaffer_diffusion import runtime_dtype as rd
 from gaffer_diffusion.cli import _parser, _runtime
 from gaffer_diffusion.conditioning import LightingMaps, RelightingConditions, encode_conditions
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.photo_encoding import PhotoEncodingCache
 from gaffer_diffusion.schedulers import make_scheduler
 from gaffer_diffusion.testing import random_conditions
 
@@ -217,6 +218,32 @@ def test_one_photo_is_encoded_once_for_many_lightings(monkeypatch: pytest.Monkey
             torch.testing.assert_close(
                 getattr(together, field), torch.cat([getattr(a, field) for a in alone])
             )
+    # a batch of two photos, each under two lightings: each photo encoded once, alone, and every
+    # item's latents are the ones it gets when encoded alone (batching does not change results)
+    other = 1.0 - photo
+    mixed = RelightingConditions(
+        image=torch.cat([photo, other, photo, other]),
+        lighting=LightingMaps(
+            ldr=torch.cat([cond.lighting.ldr, cond.lighting.ldr[:1]]),
+            hdr=torch.cat([cond.lighting.hdr, cond.lighting.hdr[:1]]),
+        ),
+    )
+    calls.clear()
+    both = encode_conditions(model, mixed)
+    assert calls == [1, 1]
+    for i in range(4):
+        one = encode_conditions(
+            model,
+            RelightingConditions(
+                image=mixed.image[i : i + 1],
+                lighting=LightingMaps(
+                    ldr=mixed.lighting.ldr[i : i + 1], hdr=mixed.lighting.hdr[i : i + 1]
+                ),
+            ),
+            photo_cache=PhotoEncodingCache(),
+        )
+        for field in ("image_latents", "hdr_latents", "ldr_latents", "clip_embeds"):
+            assert torch.equal(getattr(both, field)[i : i + 1], getattr(one, field)), (i, field)
     # the pipeline keeps it for the next batch (the turntable's next frames) of the same photo
     pipe = RelightPipeline(model)
     calls.clear()

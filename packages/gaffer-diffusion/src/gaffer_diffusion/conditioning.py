@@ -30,8 +30,9 @@ from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
 from gaffer_diffusion.photo_encoding import (
     PhotoEncodingCache,
     clip_embedding,
-    one_photo,
-    with_photo,
+    encode_photo,
+    photo_groups,
+    with_photos,
 )
 from gaffer_diffusion.photo_encoding import clip_preprocess as clip_preprocess  # defined there
 from gaffer_envmap.compat_mode import Compat
@@ -245,8 +246,8 @@ def encode_conditions(
 ) -> EncodedConditions:
     """Encode the input image and lighting maps (one batched VAE call) and the CLIP embedding.
 
-    A batch whose items are all one photo (one photo under many lightings) encodes the photo once;
-    with `photo_cache` the next batch of the same photo reuses it (`gaffer_diffusion.photo_encoding`).
+    A batch in which photos repeat (one photo under many lightings) encodes each photo once; with
+    `photo_cache` the next batch of the same photo reuses it (`gaffer_diffusion.photo_encoding`).
 
     Args:
         model: the networks; inputs are cast to the VAE's / CLIP's device and dtype.
@@ -273,14 +274,23 @@ def encode_conditions(
         )
     vae_param = next(model.vae.parameters())
     b = conditions.batch_size
-    photo = None
-    if one_photo(conditions.image) and (b > 1 or photo_cache is not None):
-        cache = photo_cache or PhotoEncodingCache()
-        photo = cache.get(model, conditions.image[:1])
-        # [2B, 3, H, W]  HDR, LDR in one batch; the photo's posterior joins them as item 0..B-1
+    photos = None
+    first, group = photo_groups(conditions.image)
+    if len(first) < b or photo_cache is not None:
+        # each distinct photo encoded once, alone: batch 1 whatever the batch, so that relighting a
+        # folder in batches of 4 gives the images it gives one at a time (issue 35)
+        photos = [
+            photo_cache.get(model, conditions.image[i : i + 1])
+            if photo_cache is not None
+            else encode_photo(model, conditions.image[i : i + 1])
+            for i in first
+        ]
+        # [2B, 3, H, W]  HDR, LDR in one batch; the photos' posteriors join them as items 0..B-1
         stacked = torch.cat([conditions.lighting.hdr, conditions.lighting.ldr], dim=0)
         stacked = (stacked * 2.0 - 1.0).to(device=vae_param.device, dtype=vae_param.dtype)
-        posterior = with_photo(photo.posterior, vae_posterior(model.vae, stacked), b)
+        posterior = with_photos(
+            [p.posterior for p in photos], group, vae_posterior(model.vae, stacked)
+        )
     else:
         # [3B, 3, H, W]  image, HDR, LDR in one batch, mapped [0, 1] -> [-1, 1] for the VAE
         stacked = torch.cat(
@@ -302,8 +312,9 @@ def encode_conditions(
     # [3B, 4, h, w] -> three [B, 4, h, w]; raw posterior latents (no scaling factor, official impl. §1)
     image_latents, hdr_latents, ldr_latents = latents.split(b, dim=0)
 
-    if photo is not None:
-        clip_embeds = photo.clip_embeds.expand(b, -1, -1)  # [B, 1, D]
+    if photos is not None:
+        clip_all = torch.cat([p.clip_embeds for p in photos])  # [G, 1, D]
+        clip_embeds = clip_all[torch.tensor(group, device=clip_all.device)]  # [B, 1, D]
     else:
         clip_embeds = clip_embedding(model, conditions.image)  # [B, 1, D]
     hints = None

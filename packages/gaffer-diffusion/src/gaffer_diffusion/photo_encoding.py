@@ -2,9 +2,9 @@
 
 Relighting one photo under many lightings (a folder of maps, the turntable's frames, a batch of seeds)
 repeats the same input image in every item; only the lighting maps differ. `encode_conditions` asks
-`photo_encoding` for the photo's VAE posterior and CLIP embedding: a batch whose items are all one
-photo encodes it once, and a `PhotoEncodingCache` (held by `RelightPipeline`) keeps it for the next
-batch of the same photo. On the paper-size model in float32 the photo's share of the conditioning
+`photo_encoding` for each distinct photo's VAE posterior and CLIP embedding: a batch encodes each
+photo once, alone (so an item's latents do not depend on which other items share its batch), and a
+`PhotoEncodingCache` (held by `RelightPipeline`) keeps the last one for the next batch. On the paper-size model in float32 the photo's share of the conditioning
 encode is a third of the VAE call and all of CLIP (`benchmarks/results/diffusion_speed.json`).
 """
 
@@ -24,11 +24,20 @@ from gaffer_diffusion.models.pixel import PixelPosterior
 Posterior = DiagonalGaussianDistribution | PixelPosterior
 
 
-def one_photo(images: Float[Tensor, "B 3 H W"]) -> bool:
-    """True when every item of the batch is the same image (an expanded tensor, or equal values)."""
+def photo_groups(images: Float[Tensor, "B 3 H W"]) -> tuple[list[int], list[int]]:
+    """Which items show the same photo: `(first, group)`, where `first[g]` is the index of the first
+    item of photo g and `group[i]` the photo of item i (an expanded tensor is one photo, at no cost)."""
     if images.shape[0] < 2 or images.stride(0) == 0:
-        return True
-    return bool((images == images[:1]).all())
+        return [0], [0] * images.shape[0]
+    first: list[int] = []
+    group: list[int] = []
+    for i in range(images.shape[0]):
+        g = next((k for k, j in enumerate(first) if torch.equal(images[i], images[j])), None)
+        if g is None:
+            g = len(first)
+            first.append(i)
+        group.append(g)
+    return first, group
 
 
 def _key(photo: Tensor, model: NeuralGafferModel) -> tuple[int, str, str, str]:
@@ -121,16 +130,27 @@ def encode_photo(model: NeuralGafferModel, photo: Float[Tensor, "1 3 H W"]) -> P
     )
 
 
-def with_photo(photo: Posterior, lighting: Posterior, batch: int) -> Posterior:
-    """One posterior of `[photo x batch, lighting (2 x batch)]`, as if the three had been encoded in
-    one VAE call: a posterior sample then draws each item's noise in the same order as before."""
-    if isinstance(photo, PixelPosterior) and isinstance(lighting, PixelPosterior):
-        return PixelPosterior(
-            torch.cat([photo.latents.expand(batch, -1, -1, -1), lighting.latents])
-        )
-    if isinstance(photo, DiagonalGaussianDistribution) and isinstance(
+def with_photos(photos: list[Posterior], group: list[int], lighting: Posterior) -> Posterior:
+    """One posterior of `[photo of item 0..B-1, lighting (2 x B)]`, as if the three had been encoded in
+    one VAE call: a posterior sample then draws each item's noise in the same order as before.
+
+    Args:
+        photos: each distinct photo's posterior (batch 1).
+        group: `group[i]` is the photo of item i (`photo_groups`).
+        lighting: the HDR and LDR maps' posterior, `2 x B` items.
+    """
+    index = torch.tensor(group)
+    if all(isinstance(p, PixelPosterior) for p in photos) and isinstance(lighting, PixelPosterior):
+        lat = torch.cat([p.latents for p in photos if isinstance(p, PixelPosterior)])
+        return PixelPosterior(torch.cat([lat[index.to(lat.device)], lighting.latents]))
+    if all(isinstance(p, DiagonalGaussianDistribution) for p in photos) and isinstance(
         lighting, DiagonalGaussianDistribution
     ):
-        params = photo.parameters.expand(batch, -1, -1, -1)
-        return DiagonalGaussianDistribution(torch.cat([params, lighting.parameters]))
-    raise TypeError(f"posteriors of two kinds: {type(photo).__name__}, {type(lighting).__name__}")
+        par = torch.cat(
+            [p.parameters for p in photos if isinstance(p, DiagonalGaussianDistribution)]
+        )
+        return DiagonalGaussianDistribution(
+            torch.cat([par[index.to(par.device)], lighting.parameters])
+        )
+    kinds = sorted({type(p).__name__ for p in [*photos, lighting]})
+    raise TypeError(f"posteriors of several kinds: {kinds}")

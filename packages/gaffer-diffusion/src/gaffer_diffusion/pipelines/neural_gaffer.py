@@ -23,7 +23,7 @@ from PIL import Image
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.photo import Photo
-from gaffer_diffusion.pipelines.config import RuntimeConfig
+from gaffer_diffusion.pipelines.config import DtypeName, RuntimeConfig
 from gaffer_diffusion.pipelines.load import load_pipeline
 from gaffer_diffusion.pipelines.relight import RelightPipeline
 from gaffer_diffusion.suggested import DefaultSampling
@@ -34,7 +34,11 @@ ImageInput = str | Path | Image.Image
 StepEndCallback = Callable[[Any, int, int, dict[str, Any]], dict[str, Any] | None]
 """diffusers' `callback_on_step_end(pipeline, step, timestep, callback_kwargs)`."""
 
-_DTYPE_NAMES = {torch.float32: "float32", torch.float16: "float16", torch.bfloat16: "bfloat16"}
+_DTYPE_NAMES: dict[torch.dtype, DtypeName] = {
+    torch.float32: "float32",
+    torch.float16: "float16",
+    torch.bfloat16: "bfloat16",
+}
 
 
 @dataclasses.dataclass
@@ -236,13 +240,15 @@ class NeuralGafferPipeline(DiffusionPipeline):
         size = pipe.model.config.resolution
         prepared = prepare_photo(photo, alpha, size=size, compat=own.compat)
         lighting = lighting_from_envmap(env, [pose], size=size, compat=own.compat)
-        step_callback = None
+        step_callback: Callable[[int, int], None] | None = None
         if callback_on_step_end is not None:
             _, timesteps = pipe.img2img_timesteps(1.0, sampling)
             ts = [int(t) for t in timesteps]
 
-            def step_callback(i: int, _n: int) -> None:
+            def _on_step(i: int, _n: int) -> None:
                 callback_on_step_end(self, i, ts[i], {})
+
+            step_callback = _on_step
 
         model_in = prepared.model_input
         cond = RelightingConditions(image=model_in.image, lighting=lighting, mask=model_in.mask)
