@@ -108,3 +108,26 @@ def test_training_config_gives_the_suggestion() -> None:
         "default",
     )
     assert s.object_fraction == 0.75
+
+
+def test_sampling_config_is_built_without_torch_and_is_the_pipelines_class() -> None:
+    # `DefaultSampling.sampling_config` runs before the command line imports torch: SamplingConfig
+    # lives in the torch-free `sampling_config`, and `pipelines.config` re-exports the same class
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import gaffer_diffusion\n"
+        "from gaffer_diffusion.suggested import PAPER_SAMPLING\n"
+        "c = PAPER_SAMPLING.sampling_config()\n"
+        "assert type(c) is gaffer_diffusion.SamplingConfig, type(c)\n"
+        "assert c.num_inference_steps == 50 and c.latent_mode == 'sample', c\n"
+        "print(sorted(m for m in ('torch', 'diffusers') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    from gaffer_diffusion.pipelines.config import SamplingConfig
+    from gaffer_diffusion.sampling_config import SamplingConfig as TorchFree
+
+    assert SamplingConfig is TorchFree

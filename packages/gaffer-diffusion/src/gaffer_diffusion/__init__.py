@@ -37,7 +37,7 @@ _EXPORTS: dict[str, str] = {
     "RelightingConditions": "conditioning",
     "RuntimeConfig": "pipelines",
     "SCHEDULERS": "schedulers",
-    "SamplingConfig": "pipelines",
+    "SamplingConfig": "sampling_config",
     "SchedulerConfig": "configs",
     "ShapeError": "errors",
     "UNetConfig": "configs",
@@ -102,13 +102,13 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         RelightOutput,
         RelightPipeline,
         RuntimeConfig,
-        SamplingConfig,
         load_pipeline,
     )
     from gaffer_diffusion.pipelines.neural_gaffer import (
         NeuralGafferPipeline,
         NeuralGafferPipelineOutput,
     )
+    from gaffer_diffusion.sampling_config import SamplingConfig
     from gaffer_diffusion.schedulers import SCHEDULERS, make_scheduler
     from gaffer_diffusion.suggested import PAPER_SAMPLING, DefaultSampling, latent_mode_for
 

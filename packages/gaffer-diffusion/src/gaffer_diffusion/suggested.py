@@ -21,9 +21,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointMismatchError, ConfigError
-
-if TYPE_CHECKING:
-    from gaffer_diffusion.pipelines.config import SamplingConfig
+from gaffer_diffusion.sampling_config import SamplingConfig
 
 __all__ = [
     "PAPER_SAMPLING",
@@ -174,15 +172,13 @@ class DefaultSampling:
 
     def sampling_config(
         self, *, latent_mode: LatentModeName | None = None, **fields: Any
-    ) -> "SamplingConfig":
+    ) -> SamplingConfig:
         """This setting as a `SamplingConfig`; `latent_mode` None: the one `compat` brings.
 
         Args:
             latent_mode: overrides the rule of `latent_mode_for`.
             fields: other `SamplingConfig` fields (scheduler, eta, nonfinite, ...).
         """
-        from gaffer_diffusion.pipelines.config import SamplingConfig
-
         return SamplingConfig(
             num_inference_steps=self.num_inference_steps,
             guidance_scale=float(self.guidance_scale),
