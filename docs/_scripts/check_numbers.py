@@ -41,12 +41,33 @@ the shown precision (`15.84` matches 15.8412; `3,519 s` matches 3518.83). Derive
   `rows[3].theirs` vs `rows[3].ours`), never two list entries (per-pair rows) or two files. A text can
   always show the two operands instead.
 
-How strict this is: a number is checked against every leaf of its section's files, so a wrong
-number can still pass when it happens to equal another value there. Measured on random numbers
+Pins. A number can be tied to ONE leaf, so that it must equal that value and no other of its
+section's files:
+
+    The transfer scores 17.76 dB. <!-- pin: 17.76 dB = benchmarks/results/detail_transfer.json#summary.transfer.psnr -->
+
+    <!-- pin: 18.37 dB = benchmarks/results/x.json#means.relit.psnr; +3.91 dB = benchmarks/results/x.json#a.psnr - #b.psnr -->
+    A paragraph that states 18.37 dB and +3.91 dB.
+
+A pin covers the paragraph it stands in: the run of non-blank lines around it (write it at the end of
+one of the paragraph's lines, or on its own line directly above or below the paragraph, with no blank
+line between). One comment may hold several pins, separated by `;`. The left side is the number as
+the page writes it (its sign, and its unit or none); the right side is a JSON file, `#` and a key path
+(keys between dots, list indexes as numbers: `rows.2.object_psnr_raw`), or two such leaves with ` - `
+or ` / ` (spaces around) between them, where the second may leave out its file (`#key`: the same
+file). Every number of the paragraph written as the pin's left side is then checked against that
+value only, at its shown precision (with the unit's scaling: a percent of a fraction, seconds shown
+in ms, minutes or hours); a pin overrides the section's sources and the allowlists for its number.
+A pin fails when its file is not a JSON file, its path names no number, its number is not among the
+paragraph's measured numbers, or the value differs.
+
+How strict this is: an unpinned number is checked against every leaf of its section's files, so a
+wrong number can still pass when it happens to equal another value there (pins close that gap). Measured on random numbers
 (2026-12-06): a 2-decimal dB value in 10-30 passes by chance against the NeRF validation files about 1
 time in 10, a 4-decimal ST-LPIPS almost never, a signed dB difference against a file with many variants
 (nerf_real.json's 12) often; against the model card's summary rows, rarely. Narrow sections and
-specific files keep it useful; it catches a number that went stale, not every typo.
+specific files keep it useful; it catches a number that went stale, not every typo. Headline numbers
+(README's hand-written text, the tutorials' own runs) are pinned.
 
 A number written after "about" must still match at its shown precision ("about" tells the reader that
 it was rounded, not that it may differ).
@@ -109,9 +130,6 @@ NOT_MEASURED: dict[str, dict[str, str]] = {
         "4.6": "20.15 - 15.55 of benchmarks/results/insert.json, written without its unit (checked by hand)",
     },
     "docs/tutorials/skies.md": {
-        "0.709": "cos 35 sin 120, arithmetic on the command's settings",
-        "-0.410": "cos 35 cos 120, arithmetic on the command's settings",
-        "0.574": "sin 35, arithmetic on the command's settings",
         "51.48": "Greenwich's latitude, a constant",
         "23.44": "the Earth's axial tilt, a constant",
         "61.96 degrees": "arithmetic on the two constants before it",
@@ -175,35 +193,6 @@ NOT_MEASURED: dict[str, dict[str, str]] = {
 RELEASE_VERSIONS = frozenset({"0.2", "0.3", "0.4", "0.5", "1.0", "1.1"})
 
 
-# Measured numbers with no committed result file yet, written by others while this check was built:
-# reported (printed by `main`, listed in issue 34's report), not failed, so that their text is not
-# deleted from under them. Each one should get a result file (or go); an entry whose number leaves
-# the page fails the check, so the list cannot outlive its text.
-_INSERT_SPEED = (
-    "insert speeds measured for issue 32, no result file (insert.json has the benchmark's)"
-)
-KNOWN_UNSOURCED: dict[str, dict[str, str]] = {
-    "docs/tutorials/insert.md": {
-        "5 s": "the figure script's run time, no result file",
-        "0.6 s": "the app's insert time, no result file",
-        "0.2 s": _INSERT_SPEED,
-        "0.39 s": _INSERT_SPEED,
-        "0.49 s": _INSERT_SPEED,
-        "0.59 s": _INSERT_SPEED,
-        "6 s": _INSERT_SPEED,
-    },
-    "docs/tutorials/skies.md": {
-        "0.712": "`gaffer-envmap info` output of one run, no result file",
-        "-0.409": "`gaffer-envmap info` output of one run, no result file",
-        "0.571": "`gaffer-envmap info` output of one run, no result file",
-        "3.3 s": "the skies figure's insert time, no result file",
-        "3.0 s": "the skies figure's Blender shadow time, no result file",
-        "0.06": "the sky's scale against the reference sky, no result file",
-        "0.5%": "the sky's agreement with the reference sky, no result file",
-    },
-}
-
-
 def pages(root: Path = ROOT) -> list[Path]:
     """Every Markdown file whose numbers are checked."""
     found = [root / "README.md", root / "benchmarks" / "README.md"]
@@ -229,6 +218,11 @@ _GENERATED_OPEN = re.compile(r"<!--\s*(table|generated):\s*([\w.-]+)\s*-->")
 _GENERATED_CLOSE = re.compile(r"<!--\s*/(table|generated)\s*-->")
 
 
+_PIN_COMMENT = re.compile(r"<!--\s*pin:(.*?)-->", re.S)
+_LEAF = r"[^\s#]*#[^\s]+"
+_PIN_EXPR = re.compile(rf"^(?P<a>{_LEAF})(?:\s+(?P<op>[-/])\s+(?P<b>{_LEAF}))?$")
+
+
 @dataclass(frozen=True)
 class Line:
     """One line of prose with what covers it."""
@@ -236,6 +230,35 @@ class Line:
     number: int  # 1-based
     text: str  # code, comments and link targets blanked out
     sources: tuple[str, ...]  # declared source paths in scope
+    paragraph: int = 0  # index of its run of non-blank lines (what a pin covers)
+
+
+@dataclass(frozen=True)
+class Pin:
+    """`<!-- pin: NUMBER = FILE#PATH [- or / [FILE]#PATH] -->`: one number tied to one value."""
+
+    line: int
+    paragraph: int
+    left: str  # the number as the page writes it
+    right: str  # the leaf expression
+
+
+@dataclass(frozen=True)
+class Page:
+    """What `read_page` finds: prose lines, generated blocks `(line, kind, name)` and pins."""
+
+    lines: list[Line]
+    generated: list[tuple[int, str, str]]
+    pins: list[Pin]
+
+
+def _pins_in(comment: str, line: int, paragraph: int) -> list[Pin]:
+    found = []
+    for part in comment.split(";"):
+        if part.strip():
+            left, _, right = part.partition("=")
+            found.append(Pin(line, paragraph, left.strip(), right.strip()))
+    return found
 
 
 def _blank_code_and_links(text: str) -> str:
@@ -246,10 +269,12 @@ def _blank_code_and_links(text: str) -> str:
     return text
 
 
-def read_page(path: Path) -> tuple[list[Line], list[tuple[int, str, str]]]:
-    """The page's prose lines (with declared sources in scope) and its generated blocks
-    `(line, kind, name)`."""
+def read_page(path: Path) -> Page:
+    """The page's prose lines (with declared sources in scope), its generated blocks and its pins."""
     raw = path.read_text().splitlines()
+    pins: list[Pin] = []
+    paragraph = 0
+    pin_open: tuple[int, str] | None = None  # a pin comment that goes on over lines
     # declarations: (line index, heading level in force or 0 for page-wide, paths)
     lines: list[Line] = []
     generated: list[tuple[int, str, str]] = []
@@ -261,6 +286,8 @@ def read_page(path: Path) -> tuple[list[Line], list[tuple[int, str, str]]]:
     in_generated = False
     directives: list[str] = []  # open MyST directive fences ({important}, {note}): prose inside
     for i, line in enumerate(raw, start=1):
+        if not line.strip():
+            paragraph += 1
         fence = _FENCE.match(line)
         if in_fence is not None:
             if fence and fence.group(1).startswith(in_fence) and not fence.group(2).strip():
@@ -283,6 +310,21 @@ def read_page(path: Path) -> tuple[list[Line], list[tuple[int, str, str]]]:
         if m:
             level = len(m.group(1))
             scopes = [s for s in scopes if s[0] < level]
+        if pin_open is not None:
+            start, text = pin_open
+            text += "\n" + line
+            if "-->" in line:
+                whole = _PIN_COMMENT.search(text)
+                pins += _pins_in(whole.group(1), start, paragraph) if whole else []
+                pin_open = None
+            else:
+                pin_open = (start, text)
+        else:
+            for c in _PIN_COMMENT.finditer(line):
+                pins += _pins_in(c.group(1), i, paragraph)
+            tail = _PIN_COMMENT.sub(" ", line)
+            if re.search(r"<!--\s*pin:", tail):
+                pin_open = (i, tail[tail.index("<!--") :])
         for d in _DECL.finditer(line):
             declared = tuple(d.group(1).split())
             if level == 0:
@@ -312,8 +354,8 @@ def read_page(path: Path) -> tuple[list[Line], list[tuple[int, str, str]]]:
         if m:
             text = text[len(m.group(1)) :]
         sources = page_sources + tuple(p for _, ps in scopes for p in ps)
-        lines.append(Line(i, _blank_code_and_links(text), sources))
-    return lines, generated
+        lines.append(Line(i, _blank_code_and_links(text), sources, paragraph))
+    return Page(lines, generated, pins)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -621,6 +663,80 @@ def _matches(n: Number, sources: tuple[str, ...]) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------
+# Pins
+# ---------------------------------------------------------------------------------------------
+def _leaf(source: str, keys: str) -> float:
+    """The numeric leaf at `keys` (dot-separated; list indexes as numbers) of one JSON file.
+
+    A key that itself holds dots is found too (the longest run of parts that is a key wins).
+    Raises ValueError naming what is missing.
+    """
+    path = ROOT / source
+    if not source.endswith(".json") or not path.is_file():
+        raise ValueError(f"{source} is not a JSON file")
+    value: object = json.loads(path.read_text())
+    parts = keys.split(".")
+    while parts:
+        if isinstance(value, list) and re.fullmatch(r"\d+", parts[0]):
+            index = int(parts.pop(0))
+            if index >= len(value):
+                raise ValueError(f"{source}#{keys}: index {index} past the list's end")
+            value = value[index]
+            continue
+        if isinstance(value, dict):
+            for take in range(len(parts), 0, -1):
+                key = ".".join(parts[:take])
+                if key in value:
+                    value, parts = value[key], parts[take:]
+                    break
+            else:
+                raise ValueError(f"{source}#{keys}: no key {parts[0]!r}")
+            continue
+        raise ValueError(f"{source}#{keys}: {parts[0]!r} under a {type(value).__name__}")
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{source}#{keys} is not a number")
+    return float(value)
+
+
+def pin_value(pin: Pin) -> float:
+    """The value a pin names (a leaf, or the difference or ratio of two). Raises ValueError."""
+    m = _PIN_EXPR.match(pin.right)
+    if not m:
+        raise ValueError(f"pin {pin.left!r}: {pin.right!r} is not FILE#PATH [ - or / [FILE]#PATH]")
+    source, keys = m.group("a").split("#", 1)
+    a = _leaf(source, keys)
+    if not m.group("op"):
+        return a
+    other, other_keys = m.group("b").split("#", 1)
+    b = _leaf(other or source, other_keys)
+    if m.group("op") == "-":
+        return a - b
+    if b == 0:
+        raise ValueError(f"pin {pin.left!r}: {pin.right} divides by zero")
+    return a / b
+
+
+def pinned_by(n: "Number", pin: Pin) -> bool:
+    """Whether page number `n` is the one `pin` names (same digits and sign; the unit if given)."""
+    found = list(measured_numbers(Line(0, pin.left, ())))
+    if len(found) != 1:
+        return False
+    p = found[0]
+    same_unit = p.unit == n.unit or not p.unit
+    return (p.value, p.decimals, p.sign) == (n.value, n.decimals, n.sign) and same_unit
+
+
+def pin_agrees(n: "Number", value: float) -> bool:
+    """`n` shows `value` at its precision (with its unit's scaling and its sign)."""
+    signed = -n.value if n.sign == "-" else n.value
+    for k in _SCALES.get(n.unit, (1.0,)):
+        c = value * k
+        if _equal_at(c, n) and math.copysign(1, c) == math.copysign(1, signed or c):
+            return True
+    return False
+
+
+# ---------------------------------------------------------------------------------------------
 # Generated blocks
 # ---------------------------------------------------------------------------------------------
 def _card_module() -> ModuleType:
@@ -665,17 +781,33 @@ def check_generated(path: Path, blocks: list[tuple[int, str, str]]) -> list[str]
 def check_page(path: Path) -> list[str]:
     """Every failure of one page, as `file:line: number: why` (sources resolve against the repository)."""
     rel = str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
-    lines, generated = read_page(path)
+    page = read_page(path)
     allowed = NOT_MEASURED.get(rel, {})
-    unsourced = KNOWN_UNSOURCED.get(rel, {})
     used: set[str] = set()
-    failures = check_generated(path, generated)
-    for line in lines:
+    failures = check_generated(path, page.generated)
+    values: dict[Pin, float] = {}
+    for pin in page.pins:
+        try:
+            values[pin] = pin_value(pin)
+        except ValueError as e:
+            failures.append(f"{rel}:{pin.line}: {pin.left}: {e}")
+    pins_used: set[Pin] = set()
+    for line in page.lines:
         for source in line.sources:
             if not (ROOT / source).is_file() or not source.endswith(".json"):
                 failures.append(f"{rel}:{line.number}: declared source {source} is not a JSON file")
         for n in measured_numbers(line):
-            key = n.text if n.text in allowed or n.text in unsourced else None
+            pins = [p for p in page.pins if p.paragraph == line.paragraph and pinned_by(n, p)]
+            if pins:
+                pins_used.update(pins)
+                for p in pins:
+                    if p in values and not pin_agrees(n, values[p]):
+                        failures.append(
+                            f"{rel}:{line.number}: {n.text}: pinned to {p.right} = "
+                            f"{values[p]:.6g}, which it does not show"
+                        )
+                continue
+            key = n.text if n.text in allowed else None
             if key is not None:
                 used.add(key)
                 continue
@@ -685,17 +817,15 @@ def check_page(path: Path) -> list[str]:
                 failures.append(
                     f"{rel}:{line.number}: {n.text}: matches no value of {' '.join(line.sources)}"
                 )
-    # an entry whose number left the page is stale: the lists stay as short as the text needs
-    for stale in sorted((set(allowed) | set(unsourced)) - used):
-        failures.append(
-            f"{rel}:0: {stale}: listed in NOT_MEASURED / KNOWN_UNSOURCED, not on the page"
-        )
+    for pin in page.pins:
+        if pin not in pins_used:
+            failures.append(
+                f"{rel}:{pin.line}: {pin.left}: pinned, but not a measured number of its paragraph"
+            )
+    # an entry whose number left the page is stale: the list stays as short as the text needs
+    for stale in sorted(set(allowed) - used):
+        failures.append(f"{rel}:0: {stale}: listed in NOT_MEASURED, not on the page (or pinned)")
     return sorted(dict.fromkeys(failures), key=_failure_line)
-
-
-def known_unsourced() -> list[str]:
-    """The measured numbers still waiting for a result file, as `file: number: why`."""
-    return [f"{page}: {n}: {why}" for page, ns in KNOWN_UNSOURCED.items() for n, why in ns.items()]
 
 
 def _failure_line(failure: str) -> tuple[str, int]:
@@ -711,18 +841,22 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     if args.explain is not None:
-        for page in args.files:
-            for line in read_page(page.resolve())[0]:
+        for path in args.files:
+            page = read_page(path.resolve())
+            for line in page.lines:
                 if line.number == args.explain:
                     for n in measured_numbers(line):
-                        print(n.text, "->", explain(n, line.sources) or "no match")
+                        pins = [
+                            f"pinned: {p.right}"
+                            for p in page.pins
+                            if p.paragraph == line.paragraph and pinned_by(n, p)
+                        ]
+                        print(n.text, "->", pins or explain(n, line.sources) or "no match")
         return 0
     targets = [p.resolve() for p in args.files] or pages()
     failures = [f for p in targets for f in check_page(p)]
     for f in failures:
         print(f)
-    for u in known_unsourced():
-        print(f"known, no result file yet: {u}")
     print(f"{len(failures)} number(s) without a matching source in {len(targets)} page(s)")
     return 1 if failures else 0
 
