@@ -25,6 +25,7 @@ comments and link targets,
 - a number with a unit of measure: dB, s / ms / min / h / seconds, %, a ratio (`24x`, `1.9×`), decimal
   degrees (`22.12 degrees`; whole degrees are angles one sets), sizes (MB, MiB, GB, GiB, KiB), rates
   (`it/s`, `maps/s`, `images/s`, `fps`). Counts (`3.8M` parameters, `495 pairs`) are not measurements.
+  A unit wrapped onto the next line of the paragraph (`about 1.5` / `minutes`) is the number's unit.
 
 Settings are written without such a unit (`128 px`, `50 steps`, `300 iterations`, `16 samples`), in
 code (`--threads 2`), or listed in `NOT_MEASURED` below with the reason.
@@ -89,7 +90,7 @@ import math
 import re
 import sys
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import ModuleType
 
@@ -127,7 +128,6 @@ NOT_MEASURED: dict[str, dict[str, str]] = {
         "39.6 degrees": "the default field of view (Blender's 50 mm lens), a setting",
         "39.6": "the default field of view (Blender's 50 mm lens), a setting",
         "0.53": "the sun's angular diameter, a constant",
-        "4.6": "20.15 - 15.55 of benchmarks/results/insert.json, written without its unit (checked by hand)",
     },
     "docs/tutorials/skies.md": {
         "51.48": "Greenwich's latitude, a constant",
@@ -165,6 +165,7 @@ NOT_MEASURED: dict[str, dict[str, str]] = {
         "5x": "issue 4's speed target",
         "50 ms": "issue 4's latency target",
         "+4.5": "issue 31's target (raw object PSNR over the input)",
+        "+3 dB": "issue 31's target (aligned object PSNR over the input)",
     },
     "packages/gaffer-diffusion/src/gaffer_diffusion/weights/gaffer-normals/MODEL_CARD.md": {
         "75%": _FRAMING,
@@ -231,6 +232,7 @@ class Line:
     text: str  # code, comments and link targets blanked out
     sources: tuple[str, ...]  # declared source paths in scope
     paragraph: int = 0  # index of its run of non-blank lines (what a pin covers)
+    continues: str = ""  # the start of the next line of its paragraph (a unit wrapped onto it)
 
 
 @dataclass(frozen=True)
@@ -355,6 +357,13 @@ def read_page(path: Path) -> Page:
             text = text[len(m.group(1)) :]
         sources = page_sources + tuple(p for _, ps in scopes for p in ps)
         lines.append(Line(i, _blank_code_and_links(text), sources, paragraph))
+    # a number at the end of a line whose unit was wrapped onto the next ("about 1.5\nminutes")
+    lines = [
+        replace(a, continues=b.text[:24])
+        if b.number == a.number + 1 and b.paragraph == a.paragraph
+        else a
+        for a, b in zip(lines, [*lines[1:], Line(0, "", ())], strict=True)
+    ]
     return Page(lines, generated, pins)
 
 
@@ -402,6 +411,10 @@ def measured_numbers(line: Line) -> Iterator[Number]:
     for m in _NUMBER.finditer(text):
         num, unit, sign = m.group("num"), m.group("unit") or "", m.group("sign")
         before, after = text[: m.start()], text[m.end() :]
+        if not unit and not after.strip() and line.continues:
+            wrapped = re.match(r"\s*" + _UNIT + r"(?![\w/])", line.continues)
+            if wrapped and wrapped.group("unit") not in ("x", "×", "M"):
+                unit = wrapped.group("unit")
         if unit in ("x", "×") and not re.search(r"\d[x×]$", m.group(0)):
             unit = ""  # "50 x UNet": a count times something, not a ratio (ratios: 24x, 1.9×)
         # dimensions and products of settings: 512×256, 64x64, 2x2
@@ -440,7 +453,7 @@ def measured_numbers(line: Line) -> Iterator[Number]:
             decimals = -1
         yield Number(
             line.number,
-            m.group(0).strip(),
+            m.group(0).strip() if m.group("unit") or not unit else f"{m.group(0).strip()} {unit}",
             float(clean),
             decimals,
             {"+": "+", "-": "-", "−": "-"}.get(sign, ""),

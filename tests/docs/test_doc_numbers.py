@@ -207,3 +207,16 @@ def test_pins_of_differences_ratios_units_and_list_indexes(
     flipped = text.replace("+3.91 dB =", "-3.91 dB =").replace("gains +3.91", "gains -3.91")
     failures = checker.check_page(_page(tmp_path, f"# x\n\n{flipped}"))
     assert len(failures) == 1 and "-3.91 dB: pinned to" in failures[0]
+
+
+def test_a_unit_wrapped_onto_the_next_line_still_counts(
+    checker: ModuleType, tmp_path: Path
+) -> None:
+    # "about 1.5\nminutes" once matched a load average of 1.53 (a bare decimal): with its unit it is
+    # a time, and no time leaf of the file is 90 s
+    text = f"<!-- numbers-from: {R}/insert.json -->\n# x\n\nIt takes about 1.5\nminutes to run.\n"
+    failures = checker.check_page(_page(tmp_path, text))
+    assert len(failures) == 1 and ":4: 1.5 minutes: matches no value" in failures[0]
+    # across a paragraph break the next line is not the number's
+    apart = f"<!-- numbers-from: {R}/insert.json -->\n# x\n\nA load of 1.5\n\nminutes later.\n"
+    assert checker.check_page(_page(tmp_path, apart)) == []
