@@ -10,9 +10,12 @@ still tell, and says where it comes from, without touching the measured numbers:
 - `model`: for results of a trained gaffer-tiny that did not name its weights, the release and the
   sha256 of every weights file of `weights/gaffer-tiny/` at the recorded commit, read from git, and
   `shipped` (true only when those hashes equal the shipped folder's now); for a result of a random or
-  no model, what it used.
+  no model, what it used;
+- `data`: for results of a dataset kept in git (`DATA_AT_COMMIT`: the shipped example), the sha256 of
+  its manifest at the recorded commit (the manifest lists every object, view and lighting).
 
     python benchmarks/backfill_provenance.py           # add or refresh the blocks
+    python benchmarks/backfill_provenance.py results/x.json   # only these files
     python benchmarks/backfill_provenance.py --check   # exit 1 when a file fails to name them
 
 The test `tests/benchmarks/test_result_provenance.py` requires every file to name its commit, machine
@@ -57,6 +60,12 @@ NO_TRAINED_MODEL = {
     "nerf_sizing_real_val.json": "none (TensoRF fits)",
     "nerf_sizing_real_val_b.json": "none (TensoRF fits)",
     "nerf_sizing_real_val_seeds.json": "none (TensoRF fits)",
+}
+# Results of a dataset kept in git, and its manifest.
+DATA_AT_COMMIT = {
+    "demo_example_gaffer-tiny-0.5.1.json": (
+        "packages/gaffer-diffusion/src/gaffer_diffusion/data/example/dataset.json"
+    ),
 }
 # Training-run checkpoints scored during training and not kept: no weights file to hash.
 UNKEPT_CHECKPOINTS = {
@@ -115,6 +124,16 @@ def tiny_at(commit: str) -> dict[str, Any]:
     }
 
 
+def data_at(commit: str, manifest: str) -> dict[str, Any]:
+    """A dataset in git as it was at `commit`: its folder, manifest and the manifest's sha256."""
+    return {
+        "path": str(Path(manifest).parent),
+        "manifest": Path(manifest).name,
+        "manifest_sha256": _sha256(_git_bytes("show", f"{commit}:{manifest}")),
+        "source": f"git: {manifest} at {commit}",
+    }
+
+
 def provenance(path: Path, doc: dict[str, Any]) -> dict[str, Any]:
     recorded = doc.get("machine")
     machine: dict[str, Any] = recorded if isinstance(recorded, dict) else {}
@@ -137,6 +156,8 @@ def provenance(path: Path, doc: dict[str, Any]) -> dict[str, Any]:
         block["model"] = {"trained": False, "what": NO_TRAINED_MODEL[name]}
     elif name in UNKEPT_CHECKPOINTS:
         block["model"] = {"shipped": False, "what": UNKEPT_CHECKPOINTS[name]}
+    if name in DATA_AT_COMMIT and block["code_commit"]:
+        block["data"] = data_at(block["code_commit"], DATA_AT_COMMIT[name])
     return block
 
 
@@ -187,6 +208,11 @@ def problems(name: str, doc: dict[str, Any]) -> list[str]:
     if not (names_weights(doc) or isinstance(block.get("model"), dict) or states_model(doc)):
         if Path(name).name not in NO_TRAINED_MODEL:
             found.append(f"{name}: does not say which model (or none) it measured")
+    data = block.get("data") if isinstance(block.get("data"), dict) else doc.get("data")
+    if Path(name).name in DATA_AT_COMMIT and not (
+        isinstance(data, dict) and data.get("manifest_sha256")
+    ):
+        found.append(f"{name}: a result of a dataset in git without its manifest's sha256")
     return found
 
 
@@ -197,9 +223,13 @@ def result_files() -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--check", action="store_true", help="exit 1 when a block is missing")
+    parser.add_argument("files", nargs="*", type=Path, help="only these result files")
     args = parser.parse_args(argv)
     missing = []
+    only = {f.resolve() for f in args.files}
     for path in result_files():
+        if only and path.resolve() not in only:
+            continue
         doc = json.loads(path.read_text())
         if not needs_block(doc):
             continue

@@ -118,3 +118,17 @@ def test_problems_names_what_is_missing(backfill: ModuleType) -> None:
     assert backfill.problems("nerf_real.json", {**machine, "model": "gaffer-tiny"}) == [
         "nerf_real.json: a trained gaffer-tiny's result without its weights' sha256"
     ]
+
+
+def test_a_result_of_the_shipped_example_names_its_manifest(backfill: ModuleType) -> None:
+    name = "demo_example_gaffer-tiny-0.5.1.json"
+    doc = {"machine": {"git_commit": "abc1234", "cpu_model": "some CPU"}}
+    doc["model"] = {"weights_sha256": {"unet.safetensors": "0" * 64}}
+    assert backfill.problems(name, doc) == [
+        f"{name}: a result of a dataset in git without its manifest's sha256"
+    ]
+    # the committed file names the manifest it was measured on, as git has it at its commit
+    committed = json.loads((RESULTS / name).read_text())
+    data = committed["provenance"]["data"]
+    manifest = ROOT / data["path"] / data["manifest"]
+    assert data["manifest_sha256"] == _sha(manifest), "the example's manifest changed since the run"
