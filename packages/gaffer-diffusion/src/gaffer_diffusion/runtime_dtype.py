@@ -39,6 +39,8 @@ class RuntimeConfig(Protocol):
     def attention(self) -> str: ...
     @property
     def autocast(self) -> bool: ...
+    @property
+    def compile(self) -> bool: ...
 
 
 _Runtime = TypeVar("_Runtime", bound=RuntimeConfig)
@@ -262,7 +264,10 @@ def prepare_for_inference(model: NeuralGafferModel, runtime: RuntimeConfig) -> N
       or plain matmuls with `runtime.attention == "eager"`; the CLIP tower likewise through
       transformers' `sdpa` / `eager` implementation.
     - On the bf16 CPU path (`uses_channels_last`), the UNet's and VAE's weights in channels-last
-      layout; their activations follow the weights.
+      layout; their activations follow the weights. Unless it is compiled (inductor packs its own),
+      the UNet's convolution and linear weights are also kept in oneDNN's layout, reordered once
+      instead of at every step (`gaffer_diffusion.onednn_weights`; agreement with float32 as
+      without it). Not the VAE: it runs once per image, so packing would save nothing.
     """
     import torch
     from diffusers.models.attention_processor import AttnProcessor, AttnProcessor2_0
@@ -280,6 +285,12 @@ def prepare_for_inference(model: NeuralGafferModel, runtime: RuntimeConfig) -> N
             # typed overloads omit the `memory_format` keyword it takes
             module_to: Any = torch.nn.Module.to
             module_to(net, memory_format=torch.channels_last)
+        # oneDNN's packed bf16 kernels need the native bf16 ISA (`--dtype bfloat16` on an AVX2-only
+        # CPU runs torch's own emulated kernels instead)
+        if not runtime.compile and detect_cpu_bf16().native:
+            from gaffer_diffusion.onednn_weights import prepack_onednn_weights
+
+            prepack_onednn_weights(model.unet)
 
 
 def torch_dtype_of(name: ResolvedDtype) -> torch.dtype:

@@ -8,7 +8,8 @@
         --out RELIT [--preset paper|tiny (default: the fit's)] [--ablation full|no-stage1|no-stage2|sds-stage2|sds-only]
         [--t-schedule exponential|authors] [--stage1-iterations N] [--stage2-iterations N]
         [--stage1-detail model|transfer [--stage1-transfer-radius R]]
-        [--steps N] [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
+        [--steps N] [--scheduler ddim|dpmpp-2m|unipc] [--dtype auto|float32|bfloat16|float16]
+        [--guidance S] [--average-samples K] [--[no-]mirror-average] [--compat C]
         [--[no-]shared-noise] [--object-fraction F|whole]
     gaffer-nerf render FIELD --data DATA [--split test | --orbit N [--fps 12]] --out DIR
     gaffer-nerf evaluate FIELD --data DATA --target-lighting K [--split test] [--json F]
@@ -50,6 +51,8 @@ from gaffer_envmap.sanitize import add_sanitize_argument, sanitize_flag_refusal
 from gaffer_nerf import preflight
 from gaffer_nerf.configs import (
     ABLATIONS,
+    SAMPLER_LABELS,
+    SAMPLERS,
     EarlyStoppingConfig,
     PresetName,
     RankSelectionConfig,
@@ -57,6 +60,9 @@ from gaffer_nerf.configs import (
     relight_preset,
 )
 from gaffer_nerf.errors import ConfigError, GafferNerfError
+
+DTYPES = ("auto", "float32", "bfloat16", "float16")
+"""`relight --dtype`: gaffer-diffusion's `RuntimeConfig.dtype` values (checked again there)."""
 
 if TYPE_CHECKING:  # torch and the field code are imported only once the arguments are checked
     from gaffer_nerf.data.transforms import MultiViewScene, ViewSet
@@ -179,7 +185,21 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--steps",
         type=int,
-        help="DDIM steps of the full schedule (default: the model's suggestion)",
+        help="sampler steps of the full schedule (default: the model's suggestion)",
+    )
+    r.add_argument(
+        "--scheduler",
+        choices=SAMPLERS,
+        default=None,
+        help="sampler of the relit views and Stage 2's targets: ddim (the paper, default) or the "
+        "multistep dpmpp-2m / unipc, for 15-25 --steps",
+    )
+    r.add_argument(
+        "--dtype",
+        choices=DTYPES,
+        default=None,
+        help="precision of the diffusion model (default: auto on a CPU, bfloat16 where it has "
+        "native bf16 and the model is large, else float32; float16 on CUDA)",
     )
     r.add_argument(
         "--guidance", type=float, help="CFG scale, also of SDS (default: the model's suggestion)"
@@ -417,6 +437,7 @@ def _relight_config(args: argparse.Namespace) -> Any:
         cfg = dataclasses.replace(cfg, stage2=s2)
     overrides = {
         "num_inference_steps": args.steps,
+        "scheduler": args.scheduler,
         "guidance_scale": args.guidance,
         "average_samples": args.average_samples,
         "mirror_average": args.mirror_average,
@@ -544,13 +565,16 @@ def _relight(args: argparse.Namespace) -> int:
     env = _target_envmap(args, scene)
     field = load_field(args.field, device=device)
     logger.info("loading the diffusion model (%s)", args.checkpoint or "gaffer-tiny")
-    dtype = "float16" if device.startswith("cuda") else "float32"
+    # auto: bf16 weights + channels-last where the CPU has native bf16 and the model is large (the
+    # paper's: Stage 1 about 4x faster, `benchmarks/results/cpu_fast.json`); gaffer-tiny stays float32
+    dtype = args.dtype or ("float16" if device.startswith("cuda") else "auto")
     loaded = _load_diffusion(args, RuntimeConfig(device=device, dtype=dtype))
     guide = DiffusionGuide(loaded.pipeline, cfg.diffusion)
     s = guide.sampling
     whose = "flags over the model's suggestion" if _sampling_overridden(args) else "the model's own"
     print(  # the one line that says which model and which sampling
-        f"relight with {loaded.name}: {s.num_inference_steps} DDIM "
+        f"relight with {loaded.name}: {s.num_inference_steps} "
+        f"{SAMPLER_LABELS[s.scheduler or 'ddim']} "
         f"step{'' if s.num_inference_steps == 1 else 's'}, guidance "
         f"{s.guidance_scale:g}, {s.average_samples} sample(s), mirror average "
         f"{'on' if s.mirror_average else 'off'}, {s.compat!r} encoding"
@@ -558,6 +582,9 @@ def _relight(args: argparse.Namespace) -> int:
         f"{'whole views' if s.crop_fraction is None else f'object-centred crops ({s.crop_fraction:g})'}"
         f" ({whose})"
     )
+    choice = loaded.pipeline.dtype_choice
+    if choice.dtype != "float32":  # e.g. bf16 on a CPU with AMX (`--dtype auto`, a large model)
+        print(choice.note())
     preset, why, fit_preset = _relight_preset_name(args)
     print(f"relight preset {preset} ({why})")
     perceptual = load_perceptual_loss(args.lpips_backbone, device=device)
@@ -607,6 +634,7 @@ def _sampling_overridden(args: argparse.Namespace) -> bool:
         v is not None
         for v in (
             args.steps,
+            args.scheduler,
             args.guidance,
             args.average_samples,
             args.mirror_average,

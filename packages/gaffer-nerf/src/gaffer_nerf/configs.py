@@ -13,7 +13,7 @@ rates x 0.1^(1/200) per step.
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Literal, assert_never
+from typing import TYPE_CHECKING, Literal, assert_never, get_args
 
 from gaffer_nerf.errors import ConfigError
 
@@ -345,6 +345,23 @@ class FitConfig:
 CompatName = Literal["neural-gaffer", "default"]
 """gaffer-envmap lighting encoding: the released checkpoint's ("neural-gaffer") or gaffer-envmap's."""
 
+SamplerName = Literal["ddim", "dpmpp-2m", "unipc"]
+"""The samplers the relighting stages offer (`--scheduler`; gaffer-diffusion's `SamplingConfig.scheduler`,
+named here too so that the CLI checks them before torch loads): the paper's DDIM, or DPM-Solver++ (2M)
+and UniPC, second-order multistep solvers for 15-25 steps (`benchmarks/results/cpu_fast.json`)."""
+
+SAMPLERS: tuple[SamplerName, ...] = get_args(SamplerName)
+
+MULTISTEP_SAMPLERS: tuple[SamplerName, ...] = ("dpmpp-2m", "unipc")
+"""Samplers that reuse earlier steps' predictions: they need 2 steps or more."""
+
+SAMPLER_LABELS: dict[SamplerName, str] = {
+    "ddim": "DDIM",
+    "dpmpp-2m": "DPM-Solver++",
+    "unipc": "UniPC",
+}
+"""How the command line names each sampler in its output line."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class DiffusionSamplingConfig:
@@ -355,7 +372,10 @@ class DiffusionSamplingConfig:
     paper's 50 steps, guidance 3); `resolved` overrides it with the values given.
 
     Attributes:
-        num_inference_steps: DDIM steps of the full schedule; Stage 2 runs the ones below t*.
+        num_inference_steps: sampler steps of the full schedule; Stage 2 runs the ones below t*.
+        scheduler: the sampler of Stage 1's relit views and Stage 2's targets: "ddim" (the paper's;
+            None means it), or "dpmpp-2m" / "unipc" at fewer steps (Stage 1 of the paper-size model
+            on a CPU: `benchmarks/results/cpu_fast.json`). Multistep solvers need 2 steps or more.
         guidance_scale: classifier-free guidance scale.
         average_samples: samples averaged per relit view / guidance target.
         mirror_average: also relight the mirrored view under the mirrored lighting, flip back and
@@ -382,6 +402,7 @@ class DiffusionSamplingConfig:
     """
 
     num_inference_steps: int | None = None
+    scheduler: SamplerName | None = None
     guidance_scale: float | None = None
     average_samples: int | None = None
     mirror_average: bool | None = None
@@ -417,6 +438,12 @@ class DiffusionSamplingConfig:
             raise ConfigError(
                 f"`num_inference_steps` (--steps) is {steps!r}; expected an int in [1, 1000]."
             )
+        if self.scheduler is not None and self.scheduler not in SAMPLERS:
+            raise ConfigError(
+                f"`scheduler` (--scheduler) is {self.scheduler!r}; expected one of "
+                f"{', '.join(SAMPLERS)} (the paper: ddim)."
+            )
+        _check_multistep_steps(self.scheduler, steps)
         if not isinstance(self.batch_size, int) or self.batch_size < 1:
             raise ConfigError(f"`batch_size` is {self.batch_size!r}; expected an int >= 1.")
         g = self.guidance_scale
@@ -456,9 +483,12 @@ class DiffusionSamplingConfig:
             compat=self.compat,
         )
         fraction = own.object_fraction
+        # the model's own steps (gaffer-tiny: 1) may be too few for a multistep solver asked for
+        _check_multistep_steps(self.scheduler, own.num_inference_steps)
         return replace(
             self,
             num_inference_steps=own.num_inference_steps,
+            scheduler=self.scheduler or "ddim",
             guidance_scale=float(own.guidance_scale),
             average_samples=own.average_samples,
             mirror_average=bool(own.mirror_average),
@@ -473,6 +503,15 @@ class DiffusionSamplingConfig:
         """The object fraction views are cropped to, None for whole views (resolved configs only)."""
         f = self.object_fraction
         return None if f is None or f == "whole" else float(f)
+
+
+def _check_multistep_steps(scheduler: SamplerName | None, steps: int | None) -> None:
+    """A multistep solver with fewer than 2 steps is refused, naming both flags."""
+    if scheduler in MULTISTEP_SAMPLERS and steps is not None and steps < 2:
+        raise ConfigError(
+            f"`scheduler` (--scheduler) {scheduler!r} with {steps} step: a multistep solver needs "
+            "2 steps or more (15-25 is its range); pass `--steps 20`, or `--scheduler ddim`."
+        )
 
 
 def _check_target_detail(target_detail: str, transfer_radius_px: int) -> None:

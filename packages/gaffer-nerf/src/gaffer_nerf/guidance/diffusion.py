@@ -185,11 +185,13 @@ class DiffusionGuide:
         """The resolved setting as gaffer-diffusion's `SamplingConfig` (what Stage 1 samples with).
 
         `mirror_average` is done here (on encoded conditions); `RelightPipeline.sample` ignores it.
-        The schedule's spacing (where sampling starts) is the model's own (`ModelConfig.scheduler`).
+        The schedule's spacing (where sampling starts) is the model's own (`ModelConfig.scheduler`);
+        the sampler is `sampling.scheduler` (DDIM unless asked), for Stage 1 and Stage 2's targets.
         """
         s = self.sampling
         return SamplingConfig(
             num_inference_steps=int(_resolved(s.num_inference_steps, "num_inference_steps")),
+            scheduler=s.scheduler or "ddim",
             guidance_scale=float(_resolved(s.guidance_scale, "guidance_scale")),
             average_samples=int(_resolved(s.average_samples, "average_samples")),
             mirror_average=bool(s.mirror_average),
