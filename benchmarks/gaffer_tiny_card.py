@@ -47,6 +47,33 @@ class Scored:
         return self.doc["settings"]
 
 
+WEIGHTS = CARD.parents[1]
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _release(row: Scored) -> str:
+    """The row's release; a checkpoint scored before a release whose weights (UNet, and the normal
+    estimator it used) are the shipped ones says so, so the shipped model's validation row reads as
+    the shipped model's."""
+    release = str(row.settings.get("release", "-"))
+    if release != "unreleased checkpoint":
+        return release
+    unet = _sha256(WEIGHTS / "gaffer-tiny" / "unet" / "diffusion_pytorch_model.safetensors")
+    estimator = _sha256(WEIGHTS / "gaffer-normals" / "unet" / "diffusion_pytorch_model.safetensors")
+    same_estimator = row.settings.get("hint_geometry") != "estimated" or (
+        row.settings.get("normal_estimator_sha256") == estimator
+    )
+    if row.settings.get("unet_sha256") == unet and same_estimator:
+        shipped = json.loads((WEIGHTS / "gaffer-tiny" / "gaffer_model.json").read_text())["release"]
+        return f"{shipped['name']} {shipped['version']}'s weights, scored before release"
+    return release
+
+
 def _read(split: str) -> list[Scored]:
     rows = []
     for path in sorted(RESULTS.glob(f"{split}-*.json")):
@@ -128,7 +155,7 @@ def summary_table(split: str) -> str:
         base = [r.doc["baseline_unrelit_input"]["items"][i] for i in keep]
         left = len(r.doc["metrics"]["items"]) - len(keep)
         lines.append(
-            f"| {r.label} | {r.settings['hint_geometry']} | {r.settings.get('release', '-')} | "
+            f"| {r.label} | {r.settings['hint_geometry']} | {_release(r)} | "
             f"{_mean_psnr(items, 'object_raw'):.2f} | {_mean_psnr(items, 'object_aligned'):.2f} | "
             f"{_fmt_lpips(_mean_of(items, 'object_raw', 'perceptual'))} | "
             f"{100 * _closer(items, base):.0f}% | {_mean_psnr(items, 'raw'):.2f} | "

@@ -85,3 +85,27 @@ def test_readme_module_map_names_files_that_exist() -> None:
         for path in named:
             rel = path.split("/", 1)[1] if path.startswith(src.name + "/") else path
             assert (src / rel).is_file(), f"README.md names {path}, not in {src}"
+
+
+def test_the_shipped_weights_validation_row_says_it_is_the_shipped_model() -> None:
+    """A checkpoint scored on validation before release whose UNet and normal estimator are the
+    shipped ones is the shipped model's validation: its row names the release, not "unreleased"."""
+    import hashlib
+
+    card = _card_module()
+    unet = hashlib.sha256(
+        (SHIPPED / "unet" / "diffusion_pytorch_model.safetensors").read_bytes()
+    ).hexdigest()
+    release = json.loads((SHIPPED / "gaffer_model.json").read_text())["release"]
+    shipped_rows = [
+        r for r in card._read(card.VALIDATION_SPLIT) if r.settings.get("unet_sha256") == unet
+    ]
+    assert shipped_rows, "no validation file of the shipped weights"
+    table = card.card_tables(card.CARD.read_text())["validation"]
+    named = [
+        r for r in shipped_rows if f"{release['name']} {release['version']}" in card._release(r)
+    ]
+    assert named, "the shipped weights' validation row does not name the release"
+    for r in named:
+        row = next(line for line in table.splitlines() if line.startswith(f"| {r.label} |"))
+        assert f"{release['name']} {release['version']}'s weights" in row
