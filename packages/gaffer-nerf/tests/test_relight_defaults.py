@@ -13,7 +13,12 @@ from gaffer_diffusion.testing import tiny_model
 from gaffer_nerf.cli import main
 from gaffer_nerf.configs import relight_preset
 from gaffer_nerf.guidance import DiffusionGuide, unavailable_perceptual
-from gaffer_nerf.relight import RelightDivergedError, check_renders_follow_targets, relight_field
+from gaffer_nerf.relight import (
+    RelightDivergedError,
+    check_renders_follow_targets,
+    relight_field,
+    stage2_for_model,
+)
 from gaffer_nerf.rendering import build_weight_cache, render_cached
 from gaffer_nerf.testing import write_sphere_scene
 
@@ -136,3 +141,94 @@ def test_a_diverging_run_stops_in_one_line_and_writes_nothing(
     assert code == 2
     assert len(err) == 1 and "white" in err[0] and "nothing was written" in err[0]
     assert not out.exists()
+
+
+def test_relight_output_is_complete_or_absent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # relit_views/ used to be written after the field and its report: a failure in between left a
+    # relit field without its views (or beside an earlier run's). The set is built beside --out now.
+    import gaffer_nerf.evaluate as evaluate_mod
+
+    s = write_sphere_scene(tmp_path / "scene", train_views=6, test_views=2, resolution=32)
+    data, field, out = str(s.root), tmp_path / "field", tmp_path / "relit"
+    common = ["--device", "cpu", "--no-progress"]
+    fit = ["fit", data, "--out", str(field), "--preset", "tiny", "--iterations", "40", *common]
+    assert main(fit) == 0
+    relight = [
+        "relight", str(field), "--data", data, "--target-lighting", "1", "--envmaps",
+        str(s.envmap_dir), "--diffusion-preset", "tiny", "--stage1-iterations", "3",
+        "--stage2-iterations", "1", "--steps", "2", "--out", str(out), *common,
+    ]  # fmt: skip
+    real_write = evaluate_mod.write_images
+
+    def disk_full(images, folder, names):  # the relit views fail after the field was saved
+        real_write(images[:1], folder, names[:1])
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(evaluate_mod, "write_images", disk_full)
+    assert main(relight) == 2
+    assert not out.exists()  # today: the field and its report, without relit_views
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+    monkeypatch.setattr(evaluate_mod, "write_images", real_write)
+    assert main(relight) == 0
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert Path("relit_views/005.png") in before and Path("relight_report.json") in before
+    (out / "notes.txt").write_text("mine")  # not relight's: kept by a rerun
+    monkeypatch.setattr(evaluate_mod, "write_images", disk_full)
+    assert main(relight) == 2  # a failed rerun leaves the earlier run as it was
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == {**before, Path("notes.txt"): b"mine"}
+    monkeypatch.setattr(evaluate_mod, "write_images", real_write)
+    assert main(relight) == 0
+    assert (out / "notes.txt").read_text() == "mine" and (out / "relit_views" / "000.png").is_file()
+    capsys.readouterr()
+
+
+def test_stage2_is_off_for_a_model_that_samples_in_one_step() -> None:
+    paper = relight_preset("paper")
+    cfg, why = stage2_for_model(paper, 1)
+    assert cfg.stage2 is None and cfg.stage1 == paper.stage1
+    assert why is not None and "one step" in why and "--ablation full" in why
+    assert stage2_for_model(paper, 50) == (paper, None)  # a model that denoises from any level
+    for ablation in ("no-stage1", "sds-stage2"):  # explicit choices are kept
+        explicit = relight_preset("paper", ablation)
+        assert stage2_for_model(explicit, 1) == (explicit, None)
+
+
+def test_relight_defaults_keep_stage1_targets_for_a_one_step_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # gaffer-tiny samples in one step: its partial denoise from t* = 0.4 whitened a small field's
+    # object. Before, the defaults ran Stage 2 with it; now they keep Stage 1's targets.
+    import gaffer_nerf.cli as cli_mod
+    from gaffer_diffusion import DefaultSampling
+    from gaffer_nerf.guidance.model import RelightingModel, smoke_model
+
+    one_step = DefaultSampling(num_inference_steps=1, guidance_scale=1.0, source="test")
+    model = RelightingModel(
+        pipeline=RelightPipeline(smoke_model(), default_sampling=one_step), name="one-step smoke"
+    )
+    monkeypatch.setattr(cli_mod, "_load_diffusion", lambda *a, **k: model)
+    s = write_sphere_scene(tmp_path / "scene", train_views=6, test_views=2, resolution=32)
+    data, field = str(s.root), tmp_path / "field"
+    common = ["--device", "cpu", "--no-progress"]
+    fit = ["fit", data, "--out", str(field), "--preset", "tiny", "--iterations", "40", *common]
+    assert main(fit) == 0
+    relight = [
+        "relight", str(field), "--data", data, "--target-lighting", "1", "--envmaps",
+        str(s.envmap_dir), "--stage1-iterations", "3", *common,
+    ]  # fmt: skip
+    capsys.readouterr()
+    assert main([*relight, "--out", str(tmp_path / "r1")]) == 0
+    out = capsys.readouterr().out
+    assert "stage 2 off: the model samples in one step" in out and "(no-stage2" in out
+    report = json.loads((tmp_path / "r1" / "relight_report.json").read_text())
+    assert report["config"]["stage2"] is None and report["report"]["stage2"] is None
+    assert "one step" in report["stage2_off"]
+    # asked for by name, Stage 2 runs
+    assert main([*relight, "--out", str(tmp_path / "r2"), "--ablation", "full"]) == 0
+    report = json.loads((tmp_path / "r2" / "relight_report.json").read_text())
+    assert report["report"]["stage2"]["iterations"] == 6 and report["stage2_off"] is None
+    assert "stage 2 off" not in capsys.readouterr().out

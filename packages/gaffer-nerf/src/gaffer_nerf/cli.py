@@ -157,8 +157,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--ablation",
         choices=ABLATIONS,
-        default="full",
-        help="paper section 4.4: full, without Stage 1 or 2, SDS in Stage 2, or SDS only (default: full)",
+        default=None,
+        help="paper section 4.4: full, without Stage 1 or 2, SDS in Stage 2, or SDS only (default: "
+        "full, without Stage 2 for a model that samples in one step, such as gaffer-tiny)",
     )
     r.add_argument(
         "--t-schedule",
@@ -407,7 +408,7 @@ def _load_diffusion(args: argparse.Namespace, runtime: Any = None) -> Any:
 
 def _relight_config(args: argparse.Namespace) -> Any:
     """The preset with the command line's overrides (validated: a bad flag fails here, early)."""
-    cfg = relight_preset(_relight_preset_name(args)[0], args.ablation)
+    cfg = relight_preset(_relight_preset_name(args)[0], args.ablation or "full")
     for flag, value in (
         ("--stage1-iterations", args.stage1_iterations),
         ("--stage2-iterations", args.stage2_iterations),
@@ -554,11 +555,12 @@ def _relight(args: argparse.Namespace) -> int:
     device = preflight.resolve_device(args.device)
 
     from gaffer_diffusion import RuntimeConfig
+    from gaffer_nerf._atomic_dir import atomic_output_dir
     from gaffer_nerf.checkpoint import load_field, save_field
     from gaffer_nerf.data import read_gaffer_data_object
     from gaffer_nerf.evaluate import write_images
     from gaffer_nerf.guidance import DiffusionGuide, load_perceptual_loss
-    from gaffer_nerf.relight import relight_field
+    from gaffer_nerf.relight import relight_field, stage2_for_model
 
     logger.info("loading %s and the field %s", args.data, args.field)
     scene = read_gaffer_data_object(args.data, lighting_index=args.input_lighting)
@@ -587,6 +589,11 @@ def _relight(args: argparse.Namespace) -> int:
         print(choice.note())
     preset, why, fit_preset = _relight_preset_name(args)
     print(f"relight preset {preset} ({why})")
+    stage2_off = None
+    if args.ablation is None and args.stage2_iterations is None:  # Stage 2 not asked for by name
+        cfg, stage2_off = stage2_for_model(cfg, guide.suggested.num_inference_steps)
+    if stage2_off is not None:
+        print(f"stage 2 off: {stage2_off}")
     perceptual = load_perceptual_loss(args.lpips_backbone, device=device)
     res = relight_field(
         field, scene.train, env, guide, cfg, perceptual, progress=not args.no_progress
@@ -596,6 +603,7 @@ def _relight(args: argparse.Namespace) -> int:
             {
                 "preset": preset,
                 "fit_preset": fit_preset,
+                "stage2_off": stage2_off,
                 "config": dataclasses.replace(cfg, diffusion=guide.sampling),
                 "model": {"name": loaded.name, "source": str(loaded.source)},
                 "report": res.report,
@@ -603,10 +611,13 @@ def _relight(args: argparse.Namespace) -> int:
         ),
         indent=2,
     )
-    save_field(res.field, args.out, extra={"relight_report.json": report})  # all or none
-    if res.relit_views is not None:
-        names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
-        write_images(res.relit_views, args.out / "relit_views", names)
+    # the field, its report and the relit views as one set: built beside --out, renamed in once
+    owned = (*preflight.FIELD_FILES, "relight_report.json", "relit_views")
+    with atomic_output_dir(args.out, owned=owned) as stage:
+        save_field(res.field, stage, extra={"relight_report.json": report})
+        if res.relit_views is not None:
+            names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
+            write_images(res.relit_views, stage / "relit_views", names)
     r = res.report
     s1 = cfg.stage1
     targets = (
@@ -617,7 +628,7 @@ def _relight(args: argparse.Namespace) -> int:
         else f", stage 1 fits its change of shading on the input views (radius {s1.transfer_radius_px} px)"
     )
     print(
-        f"relight ({args.ablation}{targets}): relit views {r.relight_views_seconds:.1f} s, stage 1 "
+        f"relight ({args.ablation or ('no-stage2' if stage2_off else 'full')}{targets}): relit views {r.relight_views_seconds:.1f} s, stage 1 "
         f"{r.stage1.seconds if r.stage1 else 0:.1f} s, stage 2 {r.stage2.seconds if r.stage2 else 0:.1f} s, "
         f"total {r.total_seconds:.1f} s -> {args.out}"
     )

@@ -9,7 +9,12 @@ from gaffer_nerf.relight.run import (
     relight_field,
 )
 from gaffer_nerf.relight.stage1 import run_stage1
-from gaffer_nerf.relight.stage2 import image_tv, run_stage2, target_lost_object
+from gaffer_nerf.relight.stage2 import (
+    image_tv,
+    run_stage2,
+    stage2_for_model,
+    target_lost_object,
+)
 
 __all__ = [
     "NothingToRelightWarning",
@@ -22,5 +27,6 @@ __all__ = [
     "relight_field",
     "run_stage1",
     "run_stage2",
+    "stage2_for_model",
     "target_lost_object",
 ]

@@ -22,6 +22,7 @@ background (white-out) or of its brightness (black-out). A relighting that refin
 moves far less than that in one step.
 """
 
+import dataclasses
 import time
 from collections.abc import Callable
 
@@ -29,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from gaffer_nerf.configs import Stage2Config
+from gaffer_nerf.configs import RelightConfig, Stage2Config
 from gaffer_nerf.errors import NonFiniteError
 from gaffer_nerf.fields.tensorf import TensoRFVM
 from gaffer_nerf.guidance.diffusion import DiffusionGuide, ViewConditions, t_star
@@ -67,6 +68,45 @@ def target_lost_object(
     if bright_r > MIN_OBJECT_SIGNAL and float(t.mean()) < TARGET_FADE_RATIO * bright_r:
         return "black"
     return None
+
+
+def stage2_for_model(config: RelightConfig, model_steps: int) -> tuple[RelightConfig, str | None]:
+    """`config` without its guidance Stage 2 when the model samples in one step, and why.
+
+    Stage 2's target is the model's denoise of the render from a partial noise level t* (0.4 ->
+    0.05, paper §3.3), which presumes a model that denoises from every level. A model whose own
+    sampling (its folder's `DefaultSampling`) is one step from pure noise has learned only that
+    step: gaffer-tiny's denoise from any lower start scores below its input
+    (benchmarks/results/diffusion_quality.json: 1 DDIM step 18.44 dB object PSNR, 2 steps 9.31,
+    the unrelit input 11.21), and from t* = 0.4 it returned a small field's object white. The one
+    strength at which such a model relights, t* = 1, ignores the render and gives back Stage 1's
+    own targets, so Stage 2 has nothing to add: the run falls back to the Stage-1 targets. A
+    Stage-2-only run (no Stage 1) and SDS are kept: they are explicit choices.
+
+    Args:
+        config: the run's config.
+        model_steps: the model's own number of sampling steps (`DefaultSampling.num_inference_steps`).
+
+    Returns:
+        The config (Stage 2 dropped or unchanged) and the reason it was dropped (None: kept).
+
+    Example:
+        >>> from gaffer_nerf.configs import relight_preset
+        >>> cfg, why = stage2_for_model(relight_preset("paper"), 1)
+        >>> cfg.stage2 is None, why is not None
+        (True, True)
+        >>> stage2_for_model(relight_preset("paper"), 50)[1] is None
+        True
+    """
+    s2 = config.stage2
+    if model_steps > 1 or s2 is None or s2.loss != "guidance" or config.stage1 is None:
+        return config, None
+    why = (
+        "the model samples in one step from pure noise, so its partial denoise from "
+        f"t* = {s2.t_start:g} -> {s2.t_end:g} is no relighting: Stage 2 is off and the field keeps "
+        "its Stage-1 targets (force it with `--ablation full`)"
+    )
+    return dataclasses.replace(config, stage2=None), why
 
 
 def image_tv(x: torch.Tensor) -> torch.Tensor:
