@@ -87,7 +87,7 @@ def _mesh(bpy: Any, scene: Any, name: str, verts: np.ndarray, faces: np.ndarray)
     return obj
 
 
-def _material(bpy: Any, name: str, grey: float) -> Any:
+def _material(bpy: Any, name: str, colour: tuple[float, float, float]) -> Any:
     mat = bpy.data.materials.new(name)
     if mat.node_tree is None:
         mat.use_nodes = True
@@ -95,7 +95,7 @@ def _material(bpy: Any, name: str, grey: float) -> Any:
         raise RuntimeError("Blender made no node tree for a material; is this bpy 5.0?")
     bsdf = mat.node_tree.nodes.get("Principled BSDF")
     if bsdf is not None:
-        bsdf.inputs["Base Color"].default_value = (grey, grey, grey, 1.0)
+        bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
         bsdf.inputs["Roughness"].default_value = 1.0
     return mat
 
@@ -146,12 +146,14 @@ def render(job: dict[str, np.ndarray], threads: int) -> np.ndarray:
 
     ground = _mesh(bpy, scene, "gaffer_ground", job["ground_verts"], job["ground_faces"])
     ground.is_shadow_catcher = True
-    ground.data.materials.append(_material(bpy, "gaffer_ground", 0.8))
+    ground.data.materials.append(_material(bpy, "gaffer_ground", (0.8, 0.8, 0.8)))
     proxy = _mesh(bpy, scene, "gaffer_proxy", job["proxy_verts"], job["proxy_faces"])
-    # invisible to the camera, but it shadows the ground and hides its sky (the contact shadow);
-    # black, so it adds no light of its own to the ground
+    # invisible to the camera, but it shadows the ground and hides its sky (the contact shadow), and
+    # throws back the light a diffuse object of the job's albedo would (a black proxy's shadow is
+    # too dark next to Blender's truth, whose object reflects light onto the ground)
     proxy.visible_camera = False
-    proxy.data.materials.append(_material(bpy, "gaffer_proxy", 0.0))
+    albedo = job.get("proxy_albedo", np.zeros(3))
+    proxy.data.materials.append(_material(bpy, "gaffer_proxy", tuple(float(c) for c in albedo)))
 
     with tempfile.TemporaryDirectory(prefix="gaffer_cycles_shadow_") as tmp:
         settings = scene.render.image_settings

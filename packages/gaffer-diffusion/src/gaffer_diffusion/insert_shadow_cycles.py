@@ -1,4 +1,4 @@
-"""`--shadow cycles`: the inserted object's cast shadow from Blender Cycles' shadow catcher (issue 32).
+"""`--shadow cycles`: the inserted object's cast shadow from Blender Cycles' shadow catcher.
 
 The paper adds a shadow with a shadow network (Neural Gaffer §4.1, object insertion); here Cycles
 renders it physically from a stand-in of the object:
@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float
 
+from gaffer_diffusion import detail_transfer as dt
 from gaffer_diffusion.errors import ConfigError, GafferDiffusionError, MissingDependencyError
 from gaffer_diffusion.insert_geometry import (
     MIN_FORESHORTENING,
@@ -54,6 +55,8 @@ from gaffer_diffusion.insert_geometry import (
     cast_shadow_2d,
 )
 from gaffer_diffusion.preprocess import ALPHA_THRESHOLD
+from gaffer_envmap.conventions import row_solid_angle
+from gaffer_envmap.environment_map import EnvironmentMap
 
 __all__ = [
     "CyclesShadow",
@@ -62,6 +65,7 @@ __all__ = [
     "ShadowRenderError",
     "bpy_available",
     "cast_shadow_cycles",
+    "proxy_albedo",
     "proxy_scene",
     "require_bpy",
     "shadow_region",
@@ -81,6 +85,9 @@ LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 WORKER = "gaffer_diffusion._cycles_shadow_worker"
 """The worker module, run as `python -m WORKER`."""
+
+MAX_ALBEDO = 0.9
+"""The proxy's albedo is at most this (no real diffuse surface reflects more)."""
 
 FALLBACK = "`--shadow 2d` (the pixel-height shadow, the default)"
 
@@ -210,19 +217,20 @@ def _row_runs(inside: np.ndarray) -> list[tuple[int, int]]:
 def proxy_scene(
     placed: PlacedObject,
     camera: BackgroundCamera,
-    depth: Float[np.ndarray, "h w"] | None = None,
+    relief: Float[np.ndarray, "h w"] | None = None,
 ) -> ProxyScene:
-    """The inflated proxy of `placed`, the ground through its foot and the camera (module docstring).
+    """The proxy of `placed`, the ground through its foot and the camera (module docstring).
 
     Args:
         placed: the object as placed in the background.
         camera: the background camera.
-        depth: optional relative depth of the object over `placed.alpha`'s grid (larger: farther),
-            e.g. integrated from gaffer-normals' output; its front half replaces the circle's (scaled
-            so its range over the object is the object's mean width), the back half stays round.
+        relief: optional front surface over `placed.alpha`'s grid: how far each pixel stands in front
+            of the outline's plane, in background pixels (`insert_relief.ObjectRelief.height`, from
+            the estimated normals); the back mirrors it. None: the mask's inflation (round runs).
 
     Raises:
-        ConfigError: the placed object covers no pixel above the alpha threshold.
+        ConfigError: the placed object covers no pixel above the alpha threshold, or `relief` is not
+            on `placed.alpha`'s grid or not finite.
     """
     rot = np.asarray(camera.w2c.rotation, np.float64)
     cam_pos = np.array([0.0, 0.0, 1.0])
@@ -245,33 +253,46 @@ def proxy_scene(
     cells = alpha[np.ix_(cy, cx)] > ALPHA_THRESHOLD
     if not cells.any():
         raise ConfigError("The placed object covers no pixel; there is nothing to cast a shadow.")
-    relief = None
-    if depth is not None:
-        dep = np.asarray(depth, np.float64)[np.ix_(cy, cx)]
-        spread = float(np.ptp(dep[cells])) if cells.sum() > 1 else 0.0
-        mean_half = float(np.mean([b - a for r in cells for a, b in _row_runs(r)])) * g / 2.0
-        if spread > 0 and np.isfinite(spread):
-            relief = (dep - dep[cells].min()) / spread * 2.0 * mean_half  # pixels, 0 nearest
-    verts: list[np.ndarray] = []
-    faces: list[np.ndarray] = []
-    n = 0
+    rel = None
+    if relief is not None:
+        rel = np.asarray(relief, np.float64)
+        if rel.shape != alpha.shape or not np.isfinite(rel).all():
+            raise ConfigError(
+                f"The relief is {rel.shape} (finite: {bool(np.isfinite(rel).all())}) but the placed "
+                f"object's grid is {alpha.shape}; pass finite heights over `placed.alpha`."
+            )
+        # sampled at the cells; a corner between two cells of a run gets their mean
+        rel = np.maximum(rel[np.ix_(cy, cx)], 0.0) * cells
+    rows: list[tuple[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]] = []
     for i in range(ny):
-        y_top, y_bot = top + i * g, top + min((i + 1) * g, hb)
+        runs = []
         for a, b in _row_runs(cells[i]):
             xs = left + np.arange(a, b + 1) * g  # cell corners, background pixels
             c, h = left + (a + b) * g / 2.0, (b - a) * g / 2.0
-            half = np.sqrt(np.maximum(h**2 - (xs - c) ** 2, 0.0))
-            front = half
-            if relief is not None:  # the front half from the depth: nearest point at -h
-                js = np.clip(np.arange(a, b + 1), a, b - 1)
-                front = np.minimum(h - relief[i, js], half + h)
-                front[[0, -1]] = 0.0  # closed at the run's ends
+            front = np.sqrt(np.maximum(h**2 - (xs - c) ** 2, 0.0))
+            if rel is not None:  # corner k between cells k-1 and k of the run; closed at its ends
+                v = rel[i, a:b]
+                front = np.concatenate([[0.0], (v[:-1] + v[1:]) / 2.0, [0.0]])
+            runs.append((xs, front, front))  # the back mirrors the front
+        rows.append((i, runs))
+    # The lowest pixel of the object is where its visible surface meets the ground (the foot): the
+    # front of the lowest row stands at the foot's depth, the outline's plane that far behind it
+    # (a box seen square on stands back by half its width; a ball, whose lowest row is a point, not).
+    low = next(r for r in reversed(rows) if r[1])[1]
+    setback = max(float(front.max()) for _, front, _ in low)
+    verts: list[np.ndarray] = []
+    faces: list[np.ndarray] = []
+    n = 0
+    for i, runs in rows:
+        y_top, y_bot = top + i * g, top + min((i + 1) * g, hb)
+        for xs, front, back in runs:
             k = len(xs)
             base = foot[None, :] + np.outer((xs - placed.foot_edge[0]) * s, right)
+            base = base + setback * s * forward
             for y in (y_top, y_bot):
                 lift = (placed.foot_edge[1] - y) * s * up
                 verts.append(base + lift - np.outer(front * s, forward))  # front (camera side)
-                verts.append(base + lift + np.outer(half * s, forward))  # back
+                verts.append(base + lift + np.outer(back * s, forward))  # back
             ft, bk, fb, bb = (n + j * k + np.arange(k) for j in range(4))
             q = np.arange(k - 1)
             faces += [
@@ -297,6 +318,26 @@ def proxy_scene(
         foot_world=foot,
         units_per_px=s,
     )
+
+
+def proxy_albedo(placed: PlacedObject, envmap: EnvironmentMap) -> tuple[float, float, float]:
+    """The proxy's diffuse albedo (linear RGB): the object's mean linear colour over the map's mean
+    radiance, at most `MAX_ALBEDO`.
+
+    Why: the object throws light back onto the ground near it (Blender's truth counts it); a black
+    proxy throws none, and its shadow comes out too dark. A diffuse surface of albedo `rho` whose
+    normals face every way equally is, on average, `rho` times the mean radiance of the map around it
+    (the cosine-weighted irradiance averaged over all normals is `pi` times the mean radiance), so the
+    object's mean colour over that mean is the albedo that makes the proxy as bright as the object.
+    """
+    a = np.asarray(placed.alpha, np.float64)
+    lin = dt.srgb_to_linear(np.asarray(placed.rgb, np.float64))
+    colour = (lin * a[..., None]).sum((0, 1)) / max(float(a.sum()), 1e-9)
+    rad = np.asarray(envmap.radiance_linear, np.float64)[..., :3]
+    weights = np.asarray(row_solid_angle(rad.shape[0], rad.shape[1]), np.float64)
+    mean = (rad.sum(1) * weights[:, None]).sum(0) / (weights.sum() * rad.shape[1])
+    albedo = np.clip(colour / np.maximum(mean, 1e-9), 0.0, MAX_ALBEDO)
+    return float(albedo[0]), float(albedo[1]), float(albedo[2])
 
 
 def shadow_region(
@@ -409,7 +450,7 @@ def cast_shadow_cycles(
     light: DominantLight,
     config: CyclesShadowConfig | None = None,
     *,
-    depth: Float[np.ndarray, "h w"] | None = None,
+    relief: Float[np.ndarray, "h w"] | None = None,
 ) -> CyclesShadow:
     """The factor the background is multiplied by (linear light) under the object's Cycles shadow.
 
@@ -418,7 +459,8 @@ def cast_shadow_cycles(
         lighting: the insert's lighting: its map lights the scene, its camera sees it.
         light: the dominant light (`dominant_light`): it sets the rendered region only.
         config: render settings (`CyclesShadowConfig`).
-        depth: optional relative depth of the object over `placed.alpha` (`proxy_scene`).
+        relief: optional front surface of the object over `placed.alpha` (`proxy_scene`); None: the
+            mask's inflation.
 
     Raises:
         MissingDependencyError: bpy is not installed (use `--shadow 2d`).
@@ -427,7 +469,7 @@ def cast_shadow_cycles(
     config = config or CyclesShadowConfig()
     require_bpy()
     camera = lighting.camera
-    scene = proxy_scene(placed, camera, depth)
+    scene = proxy_scene(placed, camera, relief)
     region = shadow_region(placed, camera, light)
     grid = _render_grid(camera, region, config.size)
     rw, rh, (rt, rl, rb, rr) = grid
@@ -435,6 +477,7 @@ def cast_shadow_cycles(
         "envmap": np.asarray(lighting.envmap.radiance_linear, np.float32),
         "proxy_verts": scene.proxy_verts,
         "proxy_faces": scene.proxy_faces,
+        "proxy_albedo": np.asarray(proxy_albedo(placed, lighting.envmap), np.float64),
         "ground_verts": scene.ground_verts,
         "ground_faces": scene.ground_faces,
         "c2w": scene.c2w,
