@@ -129,10 +129,11 @@ def unpack_onednn_weights(module: nn.Module) -> int:
     """Undo `prepack_onednn_weights`: the layers become plain again and drop their packed copies."""
     changed = 0
     for layer in module.modules():
+        swap: Any = layer  # a class change the type checker cannot follow
         if type(layer) is _PackedConv2d:
-            layer.__class__ = nn.Conv2d
+            swap.__class__ = nn.Conv2d
         elif type(layer) is _PackedLinear:
-            layer.__class__ = nn.Linear
+            swap.__class__ = nn.Linear
         else:
             continue
         _PACKED.pop(layer, None)
