@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from gaffer_diffusion.cli import _parser, main
-from gaffer_diffusion.cli._lighting import _check_lighting_args, _envmap_lighting
+from gaffer_diffusion.cli.from_args import _envmap_lighting, _lights
 from gaffer_envmap import bundled_hdris
 from gaffer_envmap.io import write_envmap
 
@@ -48,7 +48,7 @@ def test_every_bundled_hdri_relights_by_default(caplog: pytest.LogCaptureFixture
         assert args.sanitize == "raise"
         caplog.clear()
         with caplog.at_level(logging.INFO, logger="gaffer_envmap.sanitize"):
-            _check_lighting_args(args)  # the CLI's early read, with --sanitize
+            _lights(args)  # the request's one read, with --sanitize
             maps = _envmap_lighting(args, args.envmap, 32)  # the read that conditions the model
         assert bool(maps.hdr.isfinite().all()) and bool((maps.hdr >= 0).all())
         tiny[name] = sum("tiny negative" in r.message for r in caplog.records)

@@ -28,10 +28,13 @@
 (`checkpoint-80000/`), which also needs `--base-model` (a local Zero-1-to-3 XL diffusers folder).
 Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 128 px model shipped in the package.
 
-The code: `parser.py` builds the parser; one module per command group holds its handler and its
-flag checks (`relight.py`, `evaluate.py`, `demo.py`, `authors.py` for prepare/check, `train.py` for
-train/export/init-random); `_common.py`, `_flag_checks.py`, `_lighting.py` and `_photo.py` hold what
-they share. `main` (here) dispatches and turns every error into one line and an exit status.
+The code: `parser.py` builds the parser; `relight`, `evaluate` and `insert` turn the parsed arguments
+into a typed request once (`from_args.py` builds the `requests.py` dataclasses, performing every
+refusal and reading each input file once) and their modules (`relight.py`, `evaluate.py`,
+`insert.py`) run it; the other commands' modules (`demo.py`, `normals.py`, `authors.py` for
+prepare/check, `train.py` for train/export/init-random) check and run their own flags. `_common.py`,
+`_flag_checks.py`, `_lighting.py` and `_photo.py` hold what they share. `main` (here) dispatches and
+turns every error into one line and an exit status.
 
 Exit codes (`parser.EXIT_CODES`): 0 done; 1 `relight` on a folder wrote some images but others
 failed (listed); 2 refused or failed (one stderr line naming the argument and the fix); 130
@@ -44,19 +47,20 @@ import logging
 from collections.abc import Sequence
 
 # Only torch-free modules at import time: every argument is checked before torch, diffusers or a
-# model loads, so a refusal takes well under a second (issue 17); the rest is imported where used.
-# re-exported for tests and tools that import them from `gaffer_diffusion.cli` (the module this was);
-# not in `__all__`, so the API docs show `main` only, as before the split
-from gaffer_diffusion.cli._common import _compat as _compat
-from gaffer_diffusion.cli._common import _latent_mode as _latent_mode
-from gaffer_diffusion.cli._common import _object_fraction as _object_fraction
-from gaffer_diffusion.cli._common import _runtime as _runtime
-from gaffer_diffusion.cli._common import _sampling as _sampling
-from gaffer_diffusion.cli._lighting import _envmap_lighting as _envmap_lighting
-from gaffer_diffusion.cli._photo import _check_photo_flags as _check_photo_flags
+# model loads, so a refusal takes well under a second; the rest is imported where used.
 from gaffer_diffusion.cli.authors import _check, _prepare
 from gaffer_diffusion.cli.demo import _demo
 from gaffer_diffusion.cli.evaluate import _evaluate
+
+# One part of a request at a time (`from_args`), re-exported for tests and tools that import them
+# from `gaffer_diffusion.cli` (the module this was); not in `__all__`, so the API docs show `main`
+from gaffer_diffusion.cli.from_args import _check_photo_flags as _check_photo_flags
+from gaffer_diffusion.cli.from_args import _compat as _compat
+from gaffer_diffusion.cli.from_args import _envmap_lighting as _envmap_lighting
+from gaffer_diffusion.cli.from_args import _latent_mode as _latent_mode
+from gaffer_diffusion.cli.from_args import _object_fraction as _object_fraction
+from gaffer_diffusion.cli.from_args import _runtime as _runtime
+from gaffer_diffusion.cli.from_args import _sampling as _sampling
 from gaffer_diffusion.cli.insert import _insert
 from gaffer_diffusion.cli.normals import _normals, _train_normals
 from gaffer_diffusion.cli.parser import _parser

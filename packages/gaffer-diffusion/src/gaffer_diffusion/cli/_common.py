@@ -1,20 +1,15 @@
-"""Helpers every model command shares: loading the model (`--checkpoint`, `--base-model`) through
-`load_pipeline`, the model's own sampling with the flags given as overrides (`DefaultSampling`), the
-torch device and precision, and writing PNGs, progress bars and input folders. torch is imported only
-inside the functions that need it."""
+"""Helpers the model commands share: loading the networks through `load_pipeline`, the torch device,
+and writing PNGs, progress bars and input folders. torch is imported only inside the functions that
+need it."""
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import ConfigError, InputValueError
-from gaffer_diffusion.suggested import DefaultSampling, read_default_sampling
 
 if TYPE_CHECKING:
     import numpy as np
@@ -22,16 +17,8 @@ if TYPE_CHECKING:
     from tqdm import tqdm
 
     from gaffer_diffusion.models.model import NeuralGafferModel
-    from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig
 
 logger = logging.getLogger("gaffer_diffusion.cli")  # the name log lines carried before the split
-
-
-def _load_pipeline(args: argparse.Namespace) -> RelightPipeline:
-    """`--checkpoint` (ours or, with `--base-model`, the authors'), else gaffer-tiny, on `_runtime`."""
-    from gaffer_diffusion.pipelines import load_pipeline
-
-    return load_pipeline(args.checkpoint, args.base_model, runtime=_runtime(args))
 
 
 def _load_model(checkpoint: Path | None, base_model: Path | None) -> NeuralGafferModel:
@@ -47,97 +34,13 @@ def _base_model_error(checkpoint: Path) -> ConfigError:
     return ConfigError(not_our_folder_message(checkpoint, "--checkpoint", "--base-model"))
 
 
-def _defaults(args: argparse.Namespace) -> DefaultSampling:
-    """The model's own sampling (`DefaultSampling`): the shipped gaffer-tiny's without `--checkpoint`,
-    else what the model folder records (the paper's for the authors' release or a folder that records
-    none). A JSON read, no torch, once per folder and manifest version (`_read_defaults`)."""
-    from gaffer_diffusion import pretrained
-
-    checkpoint = getattr(args, "checkpoint", None)
-    folder = pretrained.gaffer_tiny_path() if checkpoint is None else Path(checkpoint).expanduser()
-    manifest = folder / MANIFEST_NAME
-    return _read_defaults(str(folder), manifest.stat().st_mtime_ns if manifest.is_file() else 0)
-
-
-@lru_cache(maxsize=8)
-def _read_defaults(folder: str, _manifest_mtime_ns: int) -> DefaultSampling:
-    return read_default_sampling(Path(folder))
-
-
-def _overridden(args: argparse.Namespace) -> DefaultSampling:
-    """`_defaults` with every sampling flag the user gave (`--steps`, `--guidance`, ...)."""
-    return _defaults(args).override(
-        num_inference_steps=getattr(args, "steps", None),
-        guidance_scale=getattr(args, "guidance", None),
-        average_samples=getattr(args, "average_samples", None),
-        mirror_average=getattr(args, "mirror_average", None),
-        compat=getattr(args, "compat", None),
-    )
-
-
-def _compat(args: argparse.Namespace) -> Any:
-    """`--compat`, else the lighting encoding the model was trained with (`_defaults`)."""
-    return args.compat if args.compat is not None else _defaults(args).compat
-
-
-def _object_fraction(args: argparse.Namespace) -> float | None:
-    if args.object_fraction is not None:
-        if not 0.0 < args.object_fraction <= 1.0:
-            raise ConfigError(
-                f"`--object-fraction` is {args.object_fraction}; pass a fraction in (0, 1], e.g. 0.75."
-            )
-        return float(args.object_fraction)
-    return _defaults(args).object_fraction
-
-
-def _sampling(args: argparse.Namespace) -> SamplingConfig:
-    """Every value the user leaves out is the model's own (its folder's `suggested_sampling`); an
-    explicit 0 is refused by `SamplingConfig` (it used to mean "the default" silently)."""
-    return _overridden(args).sampling_config(
-        latent_mode=_latent_mode(args), scheduler=args.scheduler
-    )
-
-
-def _latent_mode(args: argparse.Namespace) -> Any:
-    """`--latent-mode`, else the one `--compat` (or the model's encoding) brings (`latent_mode_for`)."""
-    if args.latent_mode is not None:
-        return args.latent_mode
-    return _overridden(args).latent_mode
-
-
-def _runtime(args: argparse.Namespace) -> RuntimeConfig:
-    """Device and precision; `--dtype float16` on CUDA under `--compat neural-gaffer` autocasts the
-    UNet with float32 weights, as the authors run it (official implementation §2)."""
-    from gaffer_diffusion.pipelines import RuntimeConfig
-
-    _check_autocast(args)
-    device = _device(args, check=False)  # checked before the weights load (_load_model callers)
-    autocast = args.autocast
-    if autocast is None:
-        autocast = (
-            args.dtype == "float16"
-            and device.startswith("cuda")
-            and _compat(args) == "neural-gaffer"
-        )
-    return RuntimeConfig(device=device, dtype=args.dtype, autocast=bool(autocast))
-
-
-def _check_autocast(args: argparse.Namespace) -> None:
-    if args.autocast and args.dtype in ("float32", "auto"):
-        raise ConfigError(
-            f"`--autocast` with `--dtype {args.dtype}`: autocast runs the UNet in a lower precision "
-            "named by --dtype: add `--dtype float16` (the authors') or `--dtype bfloat16`."
-        )
-
-
-def _device(args: argparse.Namespace, *, check: bool = True) -> str:
-    """`--device`, else cuda when available; with `check`, a CUDA device this torch cannot use is
-    refused."""
+def _device_name(device: str | None, *, check: bool = True) -> str:
+    """`--device`, else cuda when torch sees a GPU, else cpu; with `check`, a CUDA or MPS device this
+    torch cannot use is refused (called before the weights load)."""
     import torch
 
-    if args.device is None:
+    if device is None:
         return "cuda" if torch.cuda.is_available() else "cpu"
-    device = str(args.device)
     if not check:
         return device
     if device.startswith("cuda") and not torch.cuda.is_available():

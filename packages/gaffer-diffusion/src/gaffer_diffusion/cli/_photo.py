@@ -1,12 +1,10 @@
-"""The photo in and out, for `relight`, `prepare` and `normals`: the mask flags (`--mask auto`,
-`--sam-checkpoint`, `--background`), reading a photo and its object mask (estimated by default when
-the photo has no usable alpha, as in the app), writing an estimated mask with the outputs, and turning
+"""The photo in and out, for `relight`, `insert`, `prepare` and `normals`: reading a photo and its
+object mask (estimated by default when the photo has no usable alpha, as in the app), writing an estimated mask with the outputs, and turning
 a model result into the image written (pasted back at the photo's size, or the model's crop, over an
 optional environment backdrop)."""
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -14,46 +12,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_diffusion.cli._common import _save_png
-from gaffer_diffusion.cli._lighting import _pose
 from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
 
 if TYPE_CHECKING:
     import numpy as np
     import torch
 
+    from gaffer_diffusion.cli.requests import Light, OutputLook
     from gaffer_diffusion.photo import Photo, PreparedPhoto
 
 
 def _mask_out(out: Path) -> Path:
     """Where an automatic mask is written: beside the output, `OUT.mask.png`."""
     return out.with_name(f"{out.with_suffix('').name}.mask.png")
-
-
-def _check_photo_flags(args: argparse.Namespace) -> None:
-    """`--mask auto` / `--sam-checkpoint` / `--background` refused early, before any input is read."""
-    sam = getattr(args, "sam_checkpoint", None)
-    if sam is not None:
-        if args.mask is not None:
-            raise ConfigError("Pass `--mask` or `--sam-checkpoint`, not both.")
-        import importlib.util
-
-        if importlib.util.find_spec("segment_anything") is None:
-            raise MissingDependencyError(
-                "`--sam-checkpoint` needs segment-anything, which is not installed: "
-                "pip install segment-anything (or use `--mask auto`, the classical GrabCut fallback)."
-            )
-    if args.mask == "auto":
-        from gaffer_diffusion.automask import require_opencv
-
-        require_opencv()
-    if getattr(args, "background", "input") == "envmap":
-        if args.envmap is None and getattr(args, "envmaps", None) is None:
-            raise ConfigError(
-                "`--background envmap` shows the target environment: pass it with `--envmap ENV.exr` "
-                "(pre-encoded `--ldr/--hdr` maps cannot be shown)."
-            )
-        if not 1.0 <= args.fov < 180.0:
-            raise ConfigError(f"`--fov` is {args.fov}; expected degrees in [1, 180).")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -84,8 +55,9 @@ class PhotoMask:
 @contextlib.contextmanager
 def write_with_outputs(folder: Path, masks: Sequence[PhotoMask] = ()) -> Iterator[Path]:
     """A staging folder for a command's output files; when the block ends without an error they move
-    into `folder` together with the estimated masks of `masks`, else none of them does (issue 36:
-    `OUT.mask.png` is one of the outputs, complete or absent with them)."""
+    into `folder` together with the estimated masks of `masks`, else none of them does (an
+    estimated `OUT.mask.png` is one of the outputs, complete or absent with them: nothing already
+    written is left half-replaced)."""
     from gaffer_diffusion._atomic_dir import staged_files
 
     with staged_files(folder, ()) as stage:
@@ -95,12 +67,12 @@ def write_with_outputs(folder: Path, masks: Sequence[PhotoMask] = ()) -> Iterato
 
 
 def _photo_and_mask(
-    args: argparse.Namespace, image: Path, mask: Path | str | None, mask_out: Path
+    sam: Path | None, image: Path, mask: Path | str | None, mask_out: Path
 ) -> PhotoMask:
     """The photo and its object mask, read and checked before any weights load.
 
     The mask is `--mask PATH` when given, else the photo's alpha when it marks the object, else an
-    estimate: `--sam-checkpoint`'s Segment Anything, or GrabCut (`--mask auto`, and by default for a
+    estimate: `sam` (`--sam-checkpoint`)'s Segment Anything, or GrabCut (`--mask auto`, and by default for a
     photo without a usable alpha: RGB, or an all-opaque alpha, as the app does). An estimated mask is
     not written here: the caller writes it to `mask_out` with its outputs (`write_with_outputs`).
     """
@@ -108,7 +80,6 @@ def _photo_and_mask(
     from gaffer_envmap.writers import quantize
 
     photo = read_photo(image)
-    sam = getattr(args, "sam_checkpoint", None)
     why = ""
     if sam is None and mask != "auto":
         if isinstance(mask, Path):
@@ -162,24 +133,20 @@ def _photo_and_mask(
 
 
 def _backdrop(
-    args: argparse.Namespace,
-    envmap: Path | None,
-    height: int,
-    width: int,
-    fov: float,
-    k: int,
-    n: int,
+    look: OutputLook, light: Light | None, height: int, width: int, fov: float, k: int, n: int
 ) -> np.ndarray | None:
-    """The target environment as the camera sees it (`--background envmap`), or None."""
-    if args.background == "input" or envmap is None:
+    """The target environment as the camera sees it (`--background envmap`), or None: the map the
+    request read, not read again."""
+    from gaffer_diffusion.cli.requests import EnvmapLight
+
+    if look.background == "input" or not isinstance(light, EnvmapLight):
         return None
     from gaffer_diffusion.photo import envmap_backdrop
-    from gaffer_envmap.io import read_envmap
 
-    env = read_envmap(envmap, sanitize=args.sanitize)
+    env = light.env
     return envmap_backdrop(
         env.radiance_linear,
-        _pose(args).rotation,
+        light.pose.rotation,
         height=height,
         width=width,
         convention=env.convention,
@@ -189,10 +156,10 @@ def _backdrop(
 
 
 def _finish(
-    args: argparse.Namespace,
+    look: OutputLook,
     prepared: PreparedPhoto,
     relit: torch.Tensor,
-    envmap: Path | None,
+    light: Light | None,
     frame: tuple[int, int] = (0, 1),
 ) -> np.ndarray:
     """One model result as written: pasted back at the photo's size, or the model's crop."""
@@ -202,13 +169,13 @@ def _finish(
     from gaffer_envmap.writers import quantize
 
     k, n = frame
-    match args.output_size:
+    match look.output_size:
         case "model":
             s = int(relit.shape[-1])
             # the crop sees a narrower field than the photo: its share of the photo's width
             share = prepared.framing.side_x / prepared.photo.size_wh[0]
-            fov = float(np.rad2deg(2 * np.arctan(np.tan(np.deg2rad(args.fov) / 2) * share)))
-            bd = _backdrop(args, envmap, s, s, min(fov, 179.0), k, n)
+            fov = float(np.rad2deg(2 * np.arctan(np.tan(np.deg2rad(look.fov) / 2) * share)))
+            bd = _backdrop(look, light, s, s, min(fov, 179.0), k, n)
             if bd is None:
                 return model_crop(relit)
             m = prepared.model_input.mask[0, 0].numpy()[..., None]
@@ -216,7 +183,7 @@ def _finish(
             return quantize(m * rgb + (1 - m) * bd)
         case "input":
             h, w = prepared.alpha.shape
-            bd = _backdrop(args, envmap, h, w, args.fov, k, n)
-            return paste_back(prepared, relit, detail=args.detail, backdrop=bd)
+            bd = _backdrop(look, light, h, w, look.fov, k, n)
+            return paste_back(prepared, relit, detail=look.detail, backdrop=bd)
         case _:
-            raise ConfigError(f"`--output-size` is {args.output_size!r}; expected input or model.")
+            raise ConfigError(f"`--output-size` is {look.output_size!r}; expected input or model.")

@@ -8,12 +8,8 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
-from gaffer_diffusion.cli._photo import (
-    _check_photo_flags,
-    _mask_out,
-    _photo_and_mask,
-    write_with_outputs,
-)
+from gaffer_diffusion.cli._photo import _mask_out, _photo_and_mask, write_with_outputs
+from gaffer_diffusion.cli.from_args import _check_photo_flags
 
 
 def _validate_prepare(args: argparse.Namespace) -> None:
@@ -39,7 +35,7 @@ def _prepare(args: argparse.Namespace) -> int:
 
     from gaffer_diffusion.photo import prepare_photo
 
-    read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    read = _photo_and_mask(None, args.image, args.mask, _mask_out(args.out))
     prepared = prepare_photo(read.photo, read.alpha, size=args.size, compat=args.compat).model_input
     mask_out = _model_mask_out(args.out)
     with write_with_outputs(args.out.parent, [read]) as stage:  # all of them or none

@@ -7,7 +7,7 @@ import argparse
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion._choices import MANIFEST_NAME
-from gaffer_diffusion.cli._common import _device
+from gaffer_diffusion.cli._common import _device_name
 from gaffer_diffusion.cli._flag_checks import _check_device_cheaply
 from gaffer_diffusion.errors import ConfigError
 
@@ -65,7 +65,7 @@ def _demo(args: argparse.Namespace) -> int:
         fps=args.fps,
         seed=args.seed,
         batch_size=args.batch_size,
-        device=_device(args),
+        device=_device_name(args.device),
         extra_hdris=not args.no_extra_hdris,
         keep_background=not args.full_frame,
         compat=args.compat,

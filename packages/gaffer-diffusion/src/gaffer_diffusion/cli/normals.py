@@ -8,12 +8,8 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
-from gaffer_diffusion.cli._photo import (
-    _check_photo_flags,
-    _mask_out,
-    _photo_and_mask,
-    write_with_outputs,
-)
+from gaffer_diffusion.cli._photo import _mask_out, _photo_and_mask, write_with_outputs
+from gaffer_diffusion.cli.from_args import _check_photo_flags
 from gaffer_diffusion.errors import ConfigError
 
 
@@ -47,7 +43,7 @@ def _normals(args: argparse.Namespace) -> int:
     )
     from gaffer_diffusion.photo import prepare_photo
 
-    read = _photo_and_mask(args, args.image, args.mask, _mask_out(args.out))
+    read = _photo_and_mask(None, args.image, args.mask, _mask_out(args.out))
     photo, alpha, note = read.photo, read.alpha, read.note
     est = (
         shipped_normal_estimator()
