@@ -396,7 +396,7 @@ def role_compile(args: argparse.Namespace) -> dict[str, Any]:
     the compiled output's difference, and a second timestep (no recompile expected)."""
     import torch._inductor.config as inductor_config
 
-    from gaffer_diffusion.onednn_weights import unpack_onednn_weights
+    from gaffer_diffusion.onednn_weights import packed_layers, unpack_onednn_weights
 
     inductor_config.freezing = COMPILE_FREEZING
     pipe = _paper_pipe("auto", args)
@@ -408,6 +408,7 @@ def role_compile(args: argparse.Namespace) -> dict[str, Any]:
     x, ctx = x.to(pipe.dtype), ctx.to(pipe.dtype)
     with torch.no_grad():
         ref = unet(x, t, encoder_hidden_states=ctx).sample.float()
+    eager_packed = packed_layers(unet)  # `auto` packs them (0 would mean an unpacked baseline)
     unpack_onednn_weights(unet)  # inductor packs the weights itself (freezing)
     compiled = torch.compile(unet)
     t0 = time.perf_counter()
@@ -432,6 +433,7 @@ def role_compile(args: argparse.Namespace) -> dict[str, Any]:
         "freezing": COMPILE_FREEZING,
         "cache": "empty (TORCHINDUCTOR_CACHE_DIR in a fresh temporary folder)",
         "eager_packed_step_s": eager,
+        "eager_layers_packed": eager_packed,
         "compiled_step_s": step,
         "compile_first_call_s": first,
         "second_timestep_call_s": other_t,
