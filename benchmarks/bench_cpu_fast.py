@@ -5,16 +5,16 @@ diffusers `UNet2DConditionModel` with 16 input channels, 859.5M parameters; the 
 its real shape; 256x256 images, 32x32 latents; speed does not depend on the weights' values):
 
 - the authors' path: float32 weights, DDIM 50 steps, CFG 3 (one UNet call of batch 2 per step);
-- ours: `RuntimeConfig(dtype="auto")` (bf16 weights and channels-last convolutions on a CPU with native
-  bf16, float32 elsewhere; SDPA attention in UNet, VAE and CLIP), DDIM 50 or DPM-Solver++ (2M) at
-  15-25 steps;
+- ours: `RuntimeConfig(dtype="auto")` (bf16 weights, channels-last convolutions and the UNet's weights
+  packed for oneDNN on a CPU with native bf16, float32 elsewhere; SDPA attention in UNet, VAE and
+  CLIP), DDIM 50 or DPM-Solver++ (2M) / UniPC at 15-25 steps;
 - each lever alone (UNet step): channels-last in float32, bf16 autocast on float32 weights, bf16
   weights, bf16 weights + channels-last, the UNet's weights packed once for oneDNN
   (`gaffer_diffusion.onednn_weights`), one thread instead of two, the samplers' own arithmetic (a
-  stand-in UNet), torch.compile (`--compile`: its own run, `--only compile`);
+  stand-in UNet), torch.compile (its own run: `--only compile`);
 - the agreement of the fast path with float32 on the same noise and conditions (PSNR between the
   decoded images of a full DPM-Solver++ 20-step sample, both measured end to end), and of the fast
-  path's few-step samples (DPM-Solver++ and UniPC at 15 and 20 steps, DDIM 50) with the authors' own
+  path's samples (DPM-Solver++ at 15 and 20 steps, UniPC at 15, DDIM 50) with the authors' own
   image (float32 DDIM 50) of the same noise;
 - peak memory (RSS) of each path (each role runs in its own process);
 - an AVX2-only CPU, emulated on this one by `ONEDNN_MAX_CPU_ISA=AVX2` in a subprocess (oneDNN's
