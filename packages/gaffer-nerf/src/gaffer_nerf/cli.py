@@ -222,9 +222,9 @@ def _parser() -> argparse.ArgumentParser:
         "--shared-noise",
         action=argparse.BooleanOptionalAction,
         default=None,
-        help="start every view's relighting from the same noise (default: the preset's; tiny: "
-        "shared, chosen on real renders' validation split: +0.9 dB, lower ST-LPIPS; paper: "
-        "per-view noise)",
+        help="start every view's relighting from the same noise (default: per-view noise; one "
+        "shared noise gives every view the same sample's colour error, which the field cannot "
+        "average away)",
     )
     r.add_argument(
         "--object-fraction",
