@@ -30,6 +30,11 @@ from typing import Any
 
 import numpy as np
 
+# `emit` and `_die_with_parent` repeat gaffer_data.render.worker's on purpose: the import contracts
+# (pyproject.toml, [tool.importlinter]) forbid gaffer_diffusion -> gaffer_data outside training,
+# evaluation and the demo, and gaffer_data.render everywhere, and gaffer_data may not import
+# gaffer_diffusion; the only package both may import is gaffer_envmap, the lighting-map leaf, where a
+# subprocess event protocol does not belong (and this worker imports nothing of the gaffer packages).
 EVENT_PREFIX = "GAFFER_EVENT "
 
 
@@ -152,8 +157,8 @@ def render(job: dict[str, np.ndarray], threads: int) -> np.ndarray:
     # throws back the light a diffuse object of the job's albedo would (a black proxy's shadow is
     # too dark next to Blender's truth, whose object reflects light onto the ground)
     proxy.visible_camera = False
-    albedo = job.get("proxy_albedo", np.zeros(3))
-    proxy.data.materials.append(_material(bpy, "gaffer_proxy", tuple(float(c) for c in albedo)))
+    r, g, b = (float(c) for c in job.get("proxy_albedo", np.zeros(3)))
+    proxy.data.materials.append(_material(bpy, "gaffer_proxy", (r, g, b)))
 
     with tempfile.TemporaryDirectory(prefix="gaffer_cycles_shadow_") as tmp:
         settings = scene.render.image_settings

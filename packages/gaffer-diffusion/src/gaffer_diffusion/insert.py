@@ -69,7 +69,14 @@ from gaffer_diffusion.insert_shadow_cycles import (
 from gaffer_diffusion.photo import Photo, PreparedPhoto, relit_object
 from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
 
-__all__ = ["InsertConfig", "InsertResult", "ProxyMode", "insert_object", "relight_under"]
+__all__ = [
+    "InsertConfig",
+    "InsertResult",
+    "ProxyMode",
+    "check_shadow",
+    "insert_object",
+    "relight_under",
+]
 
 ProxyMode = Literal["auto", "estimated", "mask"]
 """The proxy of `shadow="cycles"`: "estimated" (the mask and gaffer-normals' estimated normals,
@@ -144,6 +151,29 @@ def _estimator_missing() -> str | None:
     return None
 
 
+def check_shadow(config: InsertConfig) -> str | None:
+    """Refuse, before anything is sampled, a shadow this install cannot make.
+
+    Returns:
+        For `shadow="cycles"` with `proxy="auto"`: why the estimated proxy falls back to the mask's
+        (the estimator's missing file), or None when nothing falls back.
+
+    Raises:
+        MissingDependencyError: "cycles" without bpy (naming `--shadow 2d`), or `proxy="estimated"`
+            without the shipped normal estimator's weights (naming `proxy='mask'`).
+    """
+    if config.shadow != "cycles":
+        return None
+    require_bpy()
+    missing = _estimator_missing() if config.proxy != "mask" else None
+    if missing is not None and config.proxy == "estimated":
+        raise MissingDependencyError(
+            f"proxy='estimated' needs the normal estimator gaffer-normals ({missing}); "
+            "reinstall gaffer-diffusion, or pass proxy='mask' (the proxy inflated from the mask)."
+        )
+    return missing
+
+
 def relight_under(
     pipe: RelightPipeline,
     prepared: PreparedPhoto,
@@ -176,22 +206,14 @@ def insert_object(
     shadow and composite (the module docstring has the steps).
 
     Raises:
-        MissingDependencyError: `config.shadow == "cycles"` without bpy (checked before sampling).
-        MissingDependencyError: `config.proxy == "estimated"` and the shipped normal estimator's
-            weights are missing (checked before sampling; "auto" falls back to the mask).
+        MissingDependencyError: `config.shadow == "cycles"` without bpy, or with
+            `config.proxy == "estimated"` and no normal estimator weights (`check_shadow`, before
+            sampling; "auto" falls back to the mask's proxy).
         ShadowRenderError: the Blender worker of "cycles" failed (nothing is returned).
         InputValueError: a background whose size is not the camera's.
     """
     config = config or InsertConfig()
-    missing = None
-    if config.shadow == "cycles":
-        require_bpy()
-        missing = _estimator_missing() if config.proxy != "mask" else None
-        if missing is not None and config.proxy == "estimated":
-            raise MissingDependencyError(
-                f"proxy='estimated' needs the normal estimator gaffer-normals ({missing}); "
-                "reinstall gaffer-diffusion, or pass proxy='mask' (the proxy inflated from the mask)."
-            )
+    missing = check_shadow(config)
     w, h = background.size_wh
     if (w, h) != (lighting.camera.width, lighting.camera.height):
         raise InputValueError(
@@ -202,9 +224,8 @@ def insert_object(
         pipe, prepared, lighting, sampling, compat=config.compat, seed=config.seed
     )
     extent = object_extent(prepared.alpha)
-    placed = place_object(
-        relit_object(prepared, relit, detail=config.detail), extent, placement, (h, w)
-    )
+    relit_obj = relit_object(prepared, relit, detail=config.detail)
+    placed = place_object(relit_obj, extent, placement, (h, w))
     light = dominant_light(lighting.envmap, lighting.key_light)
     start = time.perf_counter()
     proxy = ""
@@ -222,7 +243,7 @@ def insert_object(
             else:
                 from gaffer_diffusion.insert_relief import estimated_relief
 
-                relief = estimated_relief(prepared, extent, placement, (h, w))
+                relief = estimated_relief(prepared, relit_obj.box, extent, placement, (h, w))
                 proxy = f"a proxy from the mask and {relief.source}'s estimated normals"
             shadow = cast_shadow_cycles(
                 placed,

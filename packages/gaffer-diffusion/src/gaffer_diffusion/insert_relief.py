@@ -154,17 +154,19 @@ def relief_from_normals(
 def placed_normals(
     prepared: PreparedPhoto,
     normals: Float[torch.Tensor, "3 S S"],
+    box: tuple[int, int, int, int],
     extent: ObjectExtent,
     placement: Placement,
     background_hw: tuple[int, int],
 ) -> tuple[np.ndarray, np.ndarray]:
     """`normals` (over the model's input square) carried onto the placed object's grid: `([h, w, 3]
-    unit normals, [h, w] coverage)` over the `PlacedObject.box` of the same placement."""
+    unit normals, [h, w] coverage)` over the `PlacedObject.box` that `place_object` gives the
+    `RelitObject` of photo box `box` (`(top, left, bottom, right)`, `RelitObject.box`)."""
     fr = prepared.framing
-    hp, wp = prepared.alpha.shape
+    t, l, b, r = box
     # photo pixel centre -> model pixel coordinate -> [-1, 1] (align_corners=False)
-    ys = ((np.arange(hp) + 0.5 - fr.top) * fr.size / fr.side_y) / fr.size * 2.0 - 1.0
-    xs = ((np.arange(wp) + 0.5 - fr.left) * fr.size / fr.side_x) / fr.size * 2.0 - 1.0
+    ys = (np.arange(t, b) + 0.5 - fr.top) / fr.side_y * 2.0 - 1.0
+    xs = (np.arange(l, r) + 0.5 - fr.left) / fr.side_x * 2.0 - 1.0
     grid = np.stack(np.broadcast_arrays(xs[None, :], ys[:, None]), -1).astype(np.float32)
     photo_n = (
         F.grid_sample(
@@ -180,9 +182,9 @@ def placed_normals(
     # place_object resamples colours in [0, 1]: normals go through as (n + 1) / 2
     carried = place_object(
         RelitObject(
-            box=(0, 0, hp, wp),
+            box=box,
             rgb=(photo_n + 1.0) / 2.0,
-            alpha=np.asarray(prepared.alpha, np.float32),
+            alpha=np.asarray(prepared.alpha, np.float32)[t:b, l:r],
         ),
         extent,
         placement,
@@ -196,6 +198,7 @@ def placed_normals(
 
 def estimated_relief(
     prepared: PreparedPhoto,
+    box: tuple[int, int, int, int],
     extent: ObjectExtent,
     placement: Placement,
     background_hw: tuple[int, int],
@@ -206,6 +209,8 @@ def estimated_relief(
 
     Args:
         prepared: the object photo as the model sees it.
+        box: the relit object's box in the photo (`RelitObject.box`): the relief is over the grid
+            `place_object` gives it.
         extent, placement, background_hw: as given to `place_object` for the object itself.
         estimator_dir: an estimator folder (`NormalEstimator.save`); None: the shipped gaffer-normals.
 
@@ -225,7 +230,7 @@ def estimated_relief(
     )
     inp = prepared.model_input
     normals = estimate_normals(est, inp.image.float(), inp.mask.float())[0]
-    n, alpha = placed_normals(prepared, normals, extent, placement, background_hw)
+    n, alpha = placed_normals(prepared, normals, box, extent, placement, background_hw)
     return ObjectRelief(
         height=relief_from_normals(n, alpha > ALPHA_THRESHOLD),
         source="gaffer-normals" if estimator_dir is None else str(estimator_dir),
