@@ -86,6 +86,8 @@ def test_metrics_json_has_scores_baselines_and_timings(demo_out) -> None:
     assert m["schema"] == "gaffer.demo_metrics"
     assert m["settings"]["num_inference_steps"] == 2
     assert m["settings"]["device"] == "cpu" and m["settings"]["torch_threads"] == 1
+    # `dtype` "auto" as `relight` defaults to: a small UNet stays float32
+    assert m["settings"]["dtype"] == "float32"
     assert m["summary"].startswith("object mask: PSNR")
     assert 0.0 <= m["closer_than_input"] <= 1.0
     for variant in ("object_raw", "object_aligned", "raw", "aligned_image", "aligned_mask"):
@@ -195,6 +197,7 @@ def test_bad_example_and_config_values_name_the_argument(tmp_path, model_dir) ->
         DemoConfig(out=tmp_path, frames=-1)
     with pytest.raises(ConfigError, match="--batch-size"):
         DemoConfig(out=tmp_path, batch_size=0)
+    assert DemoConfig(out=tmp_path).dtype == "auto"
 
 
 def test_report_escapes_its_text() -> None:

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 import torch
 
-from gaffer_diffusion import RelightPipeline
+from gaffer_diffusion import LoadedModel, RelightPipeline
 from gaffer_diffusion.demo import load_model, sampling_for
 from gaffer_nerf.cli import main
 from gaffer_nerf.configs import DiffusionSamplingConfig, relight_preset
@@ -101,6 +101,9 @@ def test_suggestions_come_from_the_model() -> None:
     # read once from its folder; a pipeline built in memory around the same model agrees
     assert tiny.suggested == tiny.pipeline.default_sampling
     assert tiny.suggested == RelightPipeline(tiny.model).default_sampling
+    # the demo's and the app's loaded-model record, shared: the 3D stages only add their names
+    assert isinstance(tiny, LoadedModel) and tiny.suggested is tiny.default_sampling
+    assert tiny.describe().startswith(f"{tiny.name} ({tiny.source}); its sampling: ")
     s = tiny.suggested
     assert (s.num_inference_steps, s.guidance_scale, s.mirror_average, s.compat) == (
         1,

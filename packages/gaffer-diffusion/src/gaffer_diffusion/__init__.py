@@ -4,7 +4,8 @@ Public API: configs and presets, model construction, conditioning, the relightin
 loaders for the authors' checkpoint / Zero123-XL / our own format, and evaluation metrics.
 
 The names are loaded lazily (PEP 562), so `import gaffer_diffusion.cli` or `gaffer_diffusion.errors`
-does not import torch or diffusers: the command line checks its arguments before it loads them (issue 17).
+does not import torch or diffusers: the command line checks its arguments before it loads them, so
+a refusal takes well under a second.
 """
 
 import importlib
@@ -23,6 +24,7 @@ _EXPORTS: dict[str, str] = {
     "InputValueError": "errors",
     "LatentMode": "conditioning",
     "LightingMaps": "conditioning",
+    "LoadedModel": "pipelines",
     "MetricUnavailableError": "errors",
     "MissingDependencyError": "errors",
     "ModelConfig": "configs",
@@ -99,6 +101,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
     )
     from gaffer_diffusion.models import NeuralGafferModel, build_model, expand_conv_in
     from gaffer_diffusion.pipelines import (
+        LoadedModel,
         RelightOutput,
         RelightPipeline,
         RuntimeConfig,
@@ -127,6 +130,7 @@ __all__ = [
     "InputValueError",
     "LatentMode",
     "LightingMaps",
+    "LoadedModel",
     "MetricUnavailableError",
     "MissingDependencyError",
     "ModelConfig",

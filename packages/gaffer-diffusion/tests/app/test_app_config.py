@@ -22,6 +22,10 @@ def test_defaults_are_local_only() -> None:
     assert config.host == "127.0.0.1" and config.port == 7860
     assert [m.label for m in config.models] == ["gaffer-tiny (shipped)"]
     assert config.max_upload_bytes == 20 * 1024 * 1024
+    assert config.dtype == "auto"  # as `gaffer-diffusion relight --dtype`
+    assert config_from_args(_args("--dtype", "float32")).dtype == "float32"
+    with pytest.raises(SystemExit):  # argparse names the choices
+        _args("--dtype", "float64")
 
 
 @pytest.mark.parametrize(

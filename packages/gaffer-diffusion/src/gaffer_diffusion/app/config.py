@@ -1,8 +1,9 @@
 """`gaffer-diffusion app` options: one frozen `AppConfig`, checked before Gradio or torch models load.
 
-Safe defaults (issue 19): the server binds 127.0.0.1 unless `--host` is given, uploads, image sides and
-pixel counts are bounded, one relighting job runs at a time behind a bounded queue (a request beyond it
-is refused, not buffered), and uploaded files older than `--cache-max-age` are deleted (issue 36).
+Safe defaults, since the page runs jobs and keeps files for whoever reaches it: the server binds
+127.0.0.1 unless `--host` is given, uploads, image sides and pixel counts are bounded, one relighting
+job runs at a time behind a bounded queue (a request beyond it is refused, not buffered), and uploaded
+files older than `--cache-max-age` are deleted (a long-running server would otherwise fill its disk).
 """
 
 import argparse
@@ -12,6 +13,7 @@ from pathlib import Path
 
 from gaffer_diffusion._choices import MANIFEST_NAME  # torch-free (loading imports diffusers)
 from gaffer_diffusion.errors import ConfigError
+from gaffer_diffusion.runtime_dtype import DTYPE_REQUESTS, DtypeRequest  # torch-free
 
 GAFFER_TINY_LABEL = "gaffer-tiny (shipped)"
 """The model picker's default entry, the model shipped inside the package."""
@@ -42,6 +44,8 @@ class AppConfig:
         port: TCP port (0 < port < 65536).
         models: the model picker's entries, gaffer-tiny first.
         device: torch device for sampling.
+        dtype: the networks' precision, as `gaffer-diffusion relight --dtype` takes it ("auto":
+            bfloat16 on a CPU with native bf16 for a 100M+ parameter UNet, else float32).
         threads: torch CPU threads, or None for torch's default.
         max_upload_mb: largest accepted upload, per file (Gradio refuses bigger ones in the page).
         max_image_side: largest accepted side of an uploaded photo or environment map, in pixels.
@@ -61,6 +65,7 @@ class AppConfig:
         default_factory=lambda: (ModelChoice(label=GAFFER_TINY_LABEL),)
     )
     device: str = "cpu"
+    dtype: DtypeRequest = "auto"
     threads: int | None = None
     max_upload_mb: float = 20.0
     max_image_side: int = 4096
@@ -80,6 +85,10 @@ class AppConfig:
         labels = [m.label for m in self.models]
         if len(set(labels)) != len(labels):
             raise ConfigError(f"Two `--model` entries share a name ({labels}); rename a folder.")
+        if self.dtype not in DTYPE_REQUESTS:
+            raise ConfigError(
+                f"`--dtype` is {self.dtype!r}; expected one of {', '.join(DTYPE_REQUESTS)}."
+            )
         if self.threads is not None and self.threads < 1:
             raise ConfigError(f"`--threads` is {self.threads}; expected >= 1.")
         if not (math.isfinite(self.max_upload_mb) and self.max_upload_mb > 0):
@@ -141,6 +150,13 @@ def add_app_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--device", help="torch device for sampling (default: cuda if available, else cpu)"
+    )
+    p.add_argument(
+        "--dtype",
+        choices=DTYPE_REQUESTS,
+        default="auto",
+        help="networks' precision, as for `relight` (default: auto: bfloat16 on a CPU with native "
+        "bf16 for a model of 100M+ UNet parameters, else float32)",
     )
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument(
@@ -220,6 +236,7 @@ def config_from_args(args: argparse.Namespace) -> AppConfig:
         port=args.port,
         models=tuple(models),
         device=args.device or _default_device(),
+        dtype=args.dtype,
         threads=args.threads,
         max_upload_mb=args.max_upload_mb,
         max_image_side=args.max_image_side,

@@ -246,7 +246,8 @@ class Engine:
             choice.checkpoint,
             flag="--model",
             base_model=choice.base_model if authors else None,
-            runtime=RuntimeConfig(device=self.config.device),
+            # the runtime `gaffer-diffusion relight` builds (`--dtype`, default auto)
+            runtime=RuntimeConfig(device=self.config.device, dtype=self.config.dtype),
             name=choice.label if authors else None,
         )
         # A model's own encoding (gaffer-tiny: gaffer-envmap's default); others: the authors' (as relight).

@@ -9,6 +9,7 @@ from gaffer_diffusion.conditioning import CompatMode
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.evaluation import InputLighting
 from gaffer_diffusion.pipelines import SamplingConfig
+from gaffer_diffusion.runtime_dtype import DTYPE_REQUESTS, DtypeRequest
 from gaffer_envmap.compat_mode import compat_problem
 from gaffer_envmap.sanitize import SANITIZE_POLICIES, SanitizePolicy
 
@@ -51,6 +52,9 @@ class DemoConfig:
         seed: the initial-noise seed of every image.
         batch_size: images per sampling call.
         device: torch device string.
+        dtype: the networks' precision, as `gaffer-diffusion relight --dtype` takes it ("auto", the
+            default there too: bfloat16 on a CPU with native bf16 for a 100M+ parameter UNet, else
+            float32, so gaffer-tiny runs in float32; the report records the dtype used).
         compat: gaffer-envmap lighting encoding; None: the model's own (gaffer-tiny: "default"),
             else "neural-gaffer" (the released checkpoint's).
         object_fraction: crop the example view around its object, which then spans this fraction
@@ -82,6 +86,7 @@ class DemoConfig:
     seed: int = 0
     batch_size: int = 8
     device: str = "cpu"
+    dtype: DtypeRequest = "auto"
     compat: CompatMode | None = None
     extra_hdris: bool = True
     keep_background: bool = True
@@ -103,6 +108,10 @@ class DemoConfig:
             guidance_scale=DEFAULT_GUIDANCE if self.guidance_scale is None else self.guidance_scale,
             average_samples=self.average_samples or 1,
         )
+        if self.dtype not in DTYPE_REQUESTS:
+            raise ConfigError(
+                f"`dtype` (--dtype) is {self.dtype!r}; expected one of {', '.join(DTYPE_REQUESTS)}."
+            )
         if self.sanitize not in SANITIZE_POLICIES:
             raise ConfigError(
                 f"`sanitize` (--sanitize) is {self.sanitize!r}; expected one of "

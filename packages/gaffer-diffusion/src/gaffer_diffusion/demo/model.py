@@ -1,41 +1,11 @@
-"""The demo's model: `load_model` (`load_pipeline` with the demo's messages) and `sampling_for` (the
-model's own sampling, `RelightPipeline.default_sampling`, with the values given)."""
+"""The demo's model: `load_model` (`load_pipeline` with the demo's messages, giving the shared
+`gaffer_diffusion.LoadedModel`) and `sampling_for` (the model's own sampling,
+`RelightPipeline.default_sampling`, with the values given)."""
 
-from dataclasses import dataclass
 from pathlib import Path
 
 from gaffer_diffusion.conditioning import CompatMode
-from gaffer_diffusion.models.model import NeuralGafferModel
-from gaffer_diffusion.pipelines import RelightPipeline, RuntimeConfig, SamplingConfig, load_pipeline
-from gaffer_diffusion.suggested import DefaultSampling
-
-
-@dataclass(frozen=True, kw_only=True)
-class LoadedModel:
-    """A loaded pipeline and the label reports give it.
-
-    Attributes:
-        pipeline: the pipeline, with the model's own sampling (`default_sampling`).
-        name: a label for reports ("gaffer-tiny", the checkpoint's config name, or the app's label).
-    """
-
-    pipeline: RelightPipeline
-    name: str
-
-    @property
-    def model(self) -> NeuralGafferModel:
-        """The networks."""
-        return self.pipeline.model
-
-    @property
-    def source(self) -> Path | None:
-        """The folder the weights were read from (None: built in memory)."""
-        return self.pipeline.source
-
-    @property
-    def default_sampling(self) -> DefaultSampling:
-        """How the model is meant to be sampled (read once from its folder)."""
-        return self.pipeline.default_sampling
+from gaffer_diffusion.pipelines import LoadedModel, RuntimeConfig, SamplingConfig, load_pipeline
 
 
 def load_model(

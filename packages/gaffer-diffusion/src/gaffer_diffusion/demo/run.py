@@ -109,7 +109,9 @@ def run_demo(
     """
     t_start = time.perf_counter()
     out = _check_out(config.out)
-    loaded = load_model(config.checkpoint, runtime=RuntimeConfig(device=config.device))
+    # the runtime `gaffer-diffusion relight` builds from its defaults (`--dtype auto`)
+    runtime = RuntimeConfig(device=config.device, dtype=config.dtype)
+    loaded = load_model(config.checkpoint, runtime=runtime)
     pipe = loaded.pipeline
     t_loaded = time.perf_counter()
     size = loaded.model.config.resolution
@@ -162,7 +164,7 @@ def run_demo(
     )
     t_scored = time.perf_counter()
 
-    # complete or absent (issue 17): built in a hidden sibling, renamed over an earlier run at the end
+    # complete or absent (a killed run leaves no half report): built in a hidden sibling, renamed over an earlier run at the end
     with atomic_dir(out, owned=DEMO_OUTPUTS) as stage:
         files = _write_images(stage, example, jobs, relit, config)
         t_written = time.perf_counter()

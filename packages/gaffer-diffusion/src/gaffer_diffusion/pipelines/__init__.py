@@ -13,13 +13,14 @@ from gaffer_diffusion.pipelines.config import (
     RuntimeConfig,
     SamplingConfig,
 )
-from gaffer_diffusion.pipelines.load import load_pipeline
+from gaffer_diffusion.pipelines.load import LoadedModel, load_pipeline
 from gaffer_diffusion.pipelines.relight import RelightOutput, RelightPipeline, default_sampling_for
 
 __all__ = [
     "AttentionBackend",
     "ConditionsBuilder",
     "DtypeName",
+    "LoadedModel",
     "NonFinitePolicy",
     "RelightBatch",
     "RelightOutput",

@@ -9,14 +9,16 @@ and frozen on the pipeline as `default_sampling`; callers only override it.
 """
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 from gaffer_diffusion import pretrained
 from gaffer_diffusion._choices import MANIFEST_NAME
 from gaffer_diffusion.errors import CheckpointNotFoundError, ConfigError
+from gaffer_diffusion.models.model import NeuralGafferModel
 from gaffer_diffusion.pipelines.config import RuntimeConfig
 from gaffer_diffusion.pipelines.relight import RelightPipeline
-from gaffer_diffusion.suggested import read_default_sampling
+from gaffer_diffusion.suggested import DefaultSampling, read_default_sampling
 
 logger = logging.getLogger(__name__)
 
@@ -99,4 +101,39 @@ def load_pipeline(
     )
 
 
-__all__ = ["load_pipeline"]
+@dataclass(frozen=True, kw_only=True)
+class LoadedModel:
+    """A loaded pipeline and the label reports give it: what the demo, the app and gaffer-nerf's
+    stages hold (gaffer-nerf's `RelightingModel` adds only its own names).
+
+    Attributes:
+        pipeline: the pipeline, with the model's own sampling (`default_sampling`).
+        name: a label for reports ("gaffer-tiny", the checkpoint's config name, the app's label).
+    """
+
+    pipeline: RelightPipeline
+    name: str
+
+    @property
+    def model(self) -> NeuralGafferModel:
+        """The networks."""
+        return self.pipeline.model
+
+    @property
+    def source(self) -> Path | None:
+        """The folder the weights were read from (None: built in memory)."""
+        return self.pipeline.source
+
+    @property
+    def default_sampling(self) -> DefaultSampling:
+        """How the model is meant to be sampled (read once from its folder)."""
+        return self.pipeline.default_sampling
+
+    def describe(self) -> str:
+        """One line: the model, where from, and the sampling it suggests."""
+        where = f" ({self.source})" if self.source is not None else ""
+        own = self.default_sampling
+        return f"{self.name}{where}; its sampling: {own.describe()} [{own.source}]"
+
+
+__all__ = ["LoadedModel", "load_pipeline"]

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from gaffer_diffusion import (
     DefaultSampling,
+    LoadedModel,
     NeuralGafferModel,
     RelightPipeline,
     RuntimeConfig,
@@ -31,36 +32,19 @@ def smoke_model(seed: int = 0) -> NeuralGafferModel:
 
 
 @dataclass(frozen=True, kw_only=True)
-class RelightingModel:
-    """A loaded relighting pipeline and the name reports give it.
+class RelightingModel(LoadedModel):
+    """A loaded relighting pipeline and the name reports give it (`gaffer_diffusion.LoadedModel`,
+    shared with gaffer-diffusion's demo and app; `describe` is its one-line summary).
 
     Attributes:
         pipeline: the pipeline (its `default_sampling` is the model's own sampling).
         name: "gaffer-tiny (...)", "random smoke model" or the checkpoint's config name.
     """
 
-    pipeline: RelightPipeline
-    name: str
-
-    @property
-    def model(self) -> NeuralGafferModel:
-        """The networks."""
-        return self.pipeline.model
-
-    @property
-    def source(self) -> Path | None:
-        """The weights folder (None for the random model)."""
-        return self.pipeline.source
-
     @property
     def suggested(self) -> DefaultSampling:
-        """The model's own sampling (`RelightPipeline.default_sampling`)."""
-        return self.pipeline.default_sampling
-
-    def describe(self) -> str:
-        """One line: the model, where from, and the sampling it suggests."""
-        where = f" ({self.source})" if self.source is not None else ""
-        return f"{self.name}{where}; its sampling: {self.suggested.describe()} [{self.suggested.source}]"
+        """The model's own sampling (`RelightPipeline.default_sampling`), by the 3D stages' name."""
+        return self.default_sampling
 
 
 def load_relighting_model(
