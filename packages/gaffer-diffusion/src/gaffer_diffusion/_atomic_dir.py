@@ -1,4 +1,5 @@
-"""Multi-file outputs that are complete or absent (issue 17): built in a hidden sibling, then moved.
+"""Multi-file outputs that are complete or absent (an interrupted run leaves no half-written set):
+built in a hidden sibling, then moved.
 
 `atomic_dir` builds a whole output folder (the demo's) in a temporary sibling and renames it into
 place only when the block ends without an error; an earlier run's folder stays as it was until then.

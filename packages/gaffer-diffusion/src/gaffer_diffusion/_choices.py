@@ -1,7 +1,7 @@
 """The names the command line offers as choices, in a module that imports neither torch nor diffusers.
 
 `gaffer-diffusion` builds its parser and checks its arguments from these before it imports torch or
-loads a model, so that a refusal takes well under a second (issue 17). The modules that use them
+loads a model, so that a refusal takes well under a second. The modules that use them
 (`photo`, `preprocess`, `schedulers`, `conditioning`, `configs`, `loading`) import them from here.
 """
 
@@ -30,7 +30,7 @@ BACKDROP_FOV_DEG = 39.6
 PrepareCompat = Compat
 """How an object photo becomes the model's input: ours (`prepare_object_image`) or the authors' steps.
 The same two modes, with the same meaning (gaffer's corrected pipeline or the authors' bit for bit), as
-the lighting encoding: `gaffer_envmap.compat_mode.Compat` (issue 14), not spelled out again."""
+the lighting encoding: `gaffer_envmap.compat_mode.Compat`, not spelled out again."""
 
 SchedulerName = Literal["ddim", "dpmpp-2m", "unipc", "dpmsolver++"]
 """Sampler names accepted by `make_scheduler` and the pipeline: the paper's DDIM, DPM-Solver++ (2M),
@@ -40,7 +40,7 @@ SCHEDULERS: tuple[SchedulerName, ...] = ("ddim", "dpmpp-2m", "unipc", "dpmsolver
 
 MULTISTEP_SCHEDULERS: tuple[SchedulerName, ...] = ("dpmpp-2m", "unipc", "dpmsolver++")
 """The samplers that reuse earlier steps' predictions (second order): they need 2 steps or more and
-take no DDIM `eta` (issue 35)."""
+take no DDIM `eta`."""
 
 LatentMode = Literal["mode", "sample"]
 """How conditioning latents are taken from the VAE posterior: its mode (default) or a sample (authors)."""

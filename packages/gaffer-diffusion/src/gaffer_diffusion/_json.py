@@ -1,4 +1,4 @@
-"""Strict JSON for reports (issue 17): never `Infinity` or `NaN`, which `json.dumps` writes by default
+"""Strict JSON for reports: never `Infinity` or `NaN`, which `json.dumps` writes by default
 and strict parsers (JavaScript's `JSON.parse`, `jq`, Python with `parse_constant`) reject.
 
 A non-finite number is written as `null`, and the document's top-level `"non_finite"` object maps the

@@ -1,4 +1,4 @@
-"""Offline foreground masks for photos without alpha (issue 16): GrabCut, or SAM when installed.
+"""Offline foreground masks for photos without alpha: GrabCut, or SAM when installed.
 
 `grabcut_mask` is a classical fallback, not a learned segmenter: OpenCV's GrabCut (Rother, Kolmogorov and
 Blake, SIGGRAPH 2004) seeded with the photo's border as background and, inside a centred box, the pixels

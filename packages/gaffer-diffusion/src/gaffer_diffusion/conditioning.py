@@ -43,9 +43,9 @@ from gaffer_envmap.rotate import Filter
 LIGHTING_FILTER: Filter = "area"
 """The rotation filter of the lighting maps a model is trained and sampled with (gaffer-envmap's
 `encode_lighting(filter=...)`). gaffer-tiny was trained on maps rotated by the area filter (supersample
-2), which was gaffer-envmap's default until issue 18 made the power-exact "conservative" filter the
-default; a model must see at sampling time what it saw in training (the demo lost 1.2 dB when gaffer-tiny
-was fed conservative maps), so gaffer-diffusion names its filter here instead of following the library's
+2), which was gaffer-envmap's default until the power-exact "conservative" filter became the default;
+a model must see at sampling time what it saw in training (the demo lost 1.2 dB when gaffer-tiny was
+fed conservative maps), so gaffer-diffusion names its filter here instead of following the library's
 default. A model retrained on conservative maps would change this together with its weights."""
 LIGHTING_SUPERSAMPLE = 2
 """Sub-samples per output pixel side of `LIGHTING_FILTER` (its training setting)."""
@@ -278,7 +278,7 @@ def encode_conditions(
     first, group = photo_groups(conditions.image)
     if len(first) < b or photo_cache is not None:
         # each distinct photo encoded once, alone: batch 1 whatever the batch, so that relighting a
-        # folder in batches of 4 gives the images it gives one at a time (issue 35)
+        # folder in batches of 4 gives the images it gives one at a time
         photos = [
             photo_cache.get(model, conditions.image[i : i + 1])
             if photo_cache is not None

@@ -291,7 +291,7 @@ class ModelConfig:
             target's pixels minus the input's. "log_linear" (gaffer-tiny 0.5, pixel space only): the
             log of the target's linear radiance over the input's, a change of shading applied to
             the input in linear light, so the input's edges and texture are kept by construction
-            (issue 31: output = (input + eps) x exp(ratio) - eps).
+            (output = (input + eps) x exp(ratio) - eps).
         hint_geometry: with `hints`, where their normals come from: "silhouette" (the dome, 12
             channels) or "estimated" (the learned estimator, plus the de-lit ratio: 15 channels;
             `gaffer_diffusion.hints`).

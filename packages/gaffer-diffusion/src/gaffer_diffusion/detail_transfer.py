@@ -1,4 +1,4 @@
-"""Detail transfer: a low-resolution relit prediction applied to the full-resolution photo (issue 16).
+"""Detail transfer: a low-resolution relit prediction applied to the full-resolution photo.
 
 The model sees the object at its own resolution (64-256 px), but the photo can be 4000 px wide. Upsampling
 the model's output loses the photo's texture, print and edges. Instead we take from the model only what it

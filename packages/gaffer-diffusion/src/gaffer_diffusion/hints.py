@@ -19,7 +19,7 @@ The model sees `[diffuse, glossy_rough, glossy_sharp, normals]` (12 channels, `H
 `[z_t, E(x), E(E_H), E(E_L)]`; outside the mask every hint is 0. Mirroring the image and the maps in
 camera x mirrors the hints (tested), so the mirror mean and mirror augmentation stay exact.
 
-With `ModelConfig.hint_geometry == "estimated"` (gaffer-tiny 0.5, issue 31) the normals come from the
+With `ModelConfig.hint_geometry == "estimated"` (gaffer-tiny 0.5) the normals come from the
 learned estimator (`gaffer_diffusion.geometry.estimator`) instead of the dome, and three more channels
 follow (`ESTIMATED_HINT_CHANNELS`): the **de-lit ratio** `log(E_target(n) / pi) - log(L_input(n))`, where
 `L_input` is an order-2 spherical-harmonic fit of the input's own linear radiance over its normals

@@ -497,7 +497,7 @@ def load_pretrained(directory: PathLike, *, strict: bool = True) -> LoadResult:
                 f"{root / MANIFEST_NAME}: `config.{key}` is {flags[key]!r}; expected true or false."
             )
     manifest_config = manifest.get("config", {})
-    # added in gaffer-tiny 0.5 (issue 31); older manifests mean the earlier behaviour
+    # added in gaffer-tiny 0.5 (log-linear residual); older manifests mean the earlier behaviour
     residual_space = manifest_config.get("residual_space", "display")
     hint_geometry = manifest_config.get("hint_geometry", "silhouette")
     if residual_space not in ("display", "log_linear"):

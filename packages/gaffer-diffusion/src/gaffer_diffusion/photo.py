@@ -1,4 +1,4 @@
-"""Relighting a photo at its own resolution (issue 16): read it as people save it, frame the object for the
+"""Relighting a photo at its own resolution: read it as people save it, frame the object for the
 model, and paste the model's result back into the photo at full size.
 
 - `read_photo`: EXIF orientation applied, 8/16-bit, grey, palette, CMYK, JPEG; alpha kept if present.
@@ -26,7 +26,8 @@ from torch import Tensor
 
 from gaffer_diffusion import detail_transfer as dt
 
-# the command line's choices, defined where the parser reads them without torch (issue 17)
+# the command line's choices, defined where the parser reads them without torch, so a refusal
+# comes before torch loads
 from gaffer_diffusion._choices import BACKDROP_FOV_DEG as BACKDROP_FOV_DEG
 from gaffer_diffusion._choices import Background as Background
 from gaffer_diffusion._choices import DetailMode as DetailMode
@@ -182,7 +183,7 @@ def check_mask(mask: np.ndarray, what: str) -> None:
 
 
 def usable_alpha(photo: Photo) -> np.ndarray | None:
-    """The photo's alpha when it can mark the object, else None (issue 36).
+    """The photo's alpha when it can mark the object, else None.
 
     No alpha channel, or one that is all opaque (every value above 0.5, as many PNG exports write
     it), says nothing about where the object is: the app and the command line then estimate a mask

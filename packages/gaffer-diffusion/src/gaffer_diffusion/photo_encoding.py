@@ -1,4 +1,5 @@
-"""The input photo's encodings (VAE posterior, CLIP embedding), computed once per photo (issue 35).
+"""The input photo's encodings (VAE posterior, CLIP embedding), computed once per photo,
+so relighting one photo under many lightings pays one VAE and one CLIP encoder call.
 
 Relighting one photo under many lightings (a folder of maps, the turntable's frames, a batch of seeds)
 repeats the same input image in every item; only the lighting maps differ. `encode_conditions` asks

@@ -8,7 +8,7 @@
 5. Resize to `size` x `size` (PIL bicubic, antialiased).
 
 `compat="neural-gaffer"` (`prepare_object_image_neural_gaffer`) follows the authors' real-image script
-step by step instead (issue 15, reading 3; docs/encodings.md lists the steps and our readings).
+step by step instead (our reading of its steps, docs/encodings.md, which lists them).
 """
 
 from dataclasses import dataclass
@@ -125,7 +125,8 @@ def _to_unit(arr: np.ndarray, name: str) -> np.ndarray:
 def prepare_object_image_neural_gaffer(
     rgb: np.ndarray, alpha: np.ndarray, *, size: int = 256
 ) -> PreparedImage:
-    """The authors' real-image preparation (issue 15, reading 3), with the given alpha as SAM's mask.
+    """The authors' real-image preparation (our reading of their script), with the given alpha as
+    SAM's mask.
 
     1. Shrink to fit 512 x 512 (PIL `thumbnail`, LANCZOS; never enlarges). The photo is RGB there and
        the mask is made afterwards on the shrunk photo; a mask given here goes through the same

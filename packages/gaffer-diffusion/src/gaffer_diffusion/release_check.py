@@ -4,7 +4,7 @@ Nothing is loaded into a model and nothing is downloaded: configs are read as JS
 on the `meta` device (no memory) to list the key names and shapes the checkpoint must have, and the
 checkpoint's tensors are read as shapes only (safetensors headers; a `.bin` memory-mapped).
 
-What is checked (official implementation §1, §2; issue 15):
+What is checked (official implementation §1, §2):
 
 - `checkpoint-80000/`: the UNet weights (`model.safetensors` or `pytorch_model.bin`); its key names,
   any wrapper prefix (`module.`, `unet.`, `_orig_mod.`), every shape, `conv_in.weight` =

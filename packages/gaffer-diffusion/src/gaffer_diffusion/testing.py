@@ -289,14 +289,15 @@ def reference_prepare_neural_gaffer(
     composite: str = "after-resize",
     quantize: str = "truncate",
 ) -> np.ndarray:
-    """The authors' real-image preparation (issue 15, reading 3) from its description, in numpy.
+    """The authors' real-image preparation (our reading of their script) from its description, in
+    numpy.
 
     Shares no code with `gaffer_diffusion.preprocess`: the resampling filters are written from their
     formulas (Lanczos-3 / Keys cubic, widened by the scale when shrinking, 8-bit storage after each
     pass), premultiplied alpha by hand. Inputs up to 2047 px: PIL's `thumbnail` box-reduces first
     when it shrinks 4x or more, which this does not model.
 
-    The keyword arguments switch single steps to the readings the issue found in our old code, so
+    The keyword arguments switch single steps to the readings our old code made, so
     tests can show each reading matters: `resample="bicubic"`, `alpha_threshold=127` (alpha > 0.5),
     `side_rounding="ceil"`, `placement="centred-remainder"` ((side - h) // 2),
     `composite="before-resize"`, `quantize="round"`.

@@ -1,5 +1,5 @@
 """Turn a gaffer-tiny <= 0.4 model (dome hints, display-space residual) into the starting point of
-0.5 (estimated-geometry hints, log-linear residual; issue 31), keeping what it has learnt.
+0.5 (estimated-geometry hints, log-linear residual), keeping what it has learnt.
 
 The UNet's first convolution gains the three de-lit-ratio hint channels, zero-initialised
 (`expand_conv_in`: they are appended after the 12 hint channels, where `relighting_hints` puts them),

@@ -6,7 +6,8 @@ Stage 2 refines it with the diffusion guidance loss. Score against ground truth 
 lighting with `evaluate_field`.
 
 `import gaffer_nerf` is light: each name below is imported from its module on first use (PEP 562),
-so the command line checks its arguments before torch is imported (issue 17).
+so the command line checks its arguments before torch is imported (a refusal takes well under a
+second).
 """
 
 import importlib

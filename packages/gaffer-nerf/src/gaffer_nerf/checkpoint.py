@@ -32,7 +32,7 @@ def save_field(
     """Write `folder/config.json`, `folder/field.safetensors` and the `extra` text files (name ->
     contents, e.g. the fit's report) as one set: staged, then moved in together
     (`gaffer_envmap.atomic.atomic_files`), so a failed or killed save leaves the folder as it was,
-    never new weights beside an old config (issue 36). Returns the folder."""
+    never new weights beside an old config. Returns the folder."""
     folder = Path(folder)
     state = {k: v.detach().cpu().contiguous() for k, v in field.state_dict().items()}
     if field.alpha_volume is not None and field.alpha_aabb is not None:

@@ -124,7 +124,7 @@ def write_images(
 
     The set is staged in a hidden folder inside `folder` and renamed into place at the end
     (`gaffer_envmap.atomic.atomic_files`), so an interrupted run (even kill -9) leaves no part of a set
-    under the final names and an earlier run's files as they were (issue 17).
+    under the final names and an earlier run's files as they were.
     """
     folder = Path(folder)
     with atomic_files(folder) as stage:

@@ -7,7 +7,7 @@ region and switches the L1 weight; the second drops the rays that miss the box);
 iterations the factors are upsampled along a log-spaced voxel schedule and the optimiser is rebuilt at
 the initial learning rates (TensoRF's `lr_upsample_reset`).
 
-Three additions ("model no more than the scene needs", issue 6): the final resolution can come from the
+Three additions ("model no more than the scene needs"): the final resolution can come from the
 cameras' pixel footprint (`gaffer_nerf.sizing`), fitting can stop when the held-out PSNR stops improving
 (`EarlyStoppingConfig`), and the VM ranks can be chosen from a ladder by held-out PSNR
 (`RankSelectionConfig`).

@@ -1,4 +1,4 @@
-"""Temporal flicker of a relit image sequence along a camera path, against its ground truth (issue 20).
+"""Temporal flicker of a relit image sequence along a camera path, against its ground truth.
 
 A relit orbit may change from frame to frame for two reasons: the object and its light really change
 as the camera moves (the ground truth changes too), or the relighting is inconsistent between views

@@ -1,4 +1,5 @@
-"""Cheap checks of the command line's files, numbers and outputs, before torch is imported (issue 17).
+"""Cheap checks of the command line's files, numbers and outputs, before torch is imported, so a
+refusal takes well under a second.
 
 Everything here reads JSON and file headers only, so `gaffer-nerf` refuses a missing folder, a garbled
 `field.safetensors`, an out-of-range number or an unwritable output in well under a second, before
@@ -120,10 +121,12 @@ PRESETS = ("paper", "tiny")
 
 @dataclass(frozen=True, kw_only=True)
 class FieldPreset:
-    """The preset a field was fitted with, as its folder records it (issue 36).
+    """The preset a field was fitted with, as its folder records it (`relight` takes its own preset
+    from it: the paper's steps on a tiny field whitened the object).
 
     Attributes:
-        name: "paper" or "tiny"; None when the folder records none (a field from before issue 36).
+        name: "paper" or "tiny"; None when the folder records none (a field saved
+            before the preset was recorded).
         recorded_in: the file it was read from (None: none).
     """
 

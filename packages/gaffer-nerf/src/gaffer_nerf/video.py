@@ -1,6 +1,6 @@
 """Orbit videos of a (relit) field: cameras on a circle around the object, PNG frames and a GIF.
 
-Issue 6 asks for "videos along an orbit" of the relit radiance field. `orbit_path` places cameras on a
+A relit radiance field is judged from a video along an orbit around it. `orbit_path` places cameras on a
 horizontal circle (world z up) whose radius, elevation and intrinsics follow a reference capture (its
 median camera distance and elevation about the centre), starting at the first reference camera's
 azimuth; `render_orbit` renders them and writes `frame_000.png`, ... and `orbit.gif`, staged and
@@ -138,7 +138,7 @@ def render_orbit(
     out = Path(out_dir)
     paths: list[Path] = []
     frames: list[np.ndarray] = []
-    # the frames and the GIF are staged and renamed into place together: all or none (issue 17)
+    # the frames and the GIF are staged and renamed into place together: all or none
     with atomic_files(out) as stage:
         for k in tqdm(range(cameras.num_views), disable=not progress, desc="orbit", leave=False):
             frame = quantize(render_views(field, cameras.select([k]))[0].permute(1, 2, 0))

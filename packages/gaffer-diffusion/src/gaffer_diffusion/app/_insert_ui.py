@@ -1,4 +1,4 @@
-"""The page's "Insert into a photo" tab (issue 32, item 4): widgets wired to `Engine.insert`.
+"""The page's "Insert into a photo" tab: widgets wired to `Engine.insert`.
 
 Upload an object and a background, click the background where the object stands, click the lighting
 panorama where the key light is (or move its sliders), choose the shadow, insert, download. What each

@@ -1,4 +1,4 @@
-"""The app's "Insert into a photo" tab without Gradio: settings, clicks and previews (issue 32, item 4).
+"""The app's "Insert into a photo" tab without Gradio: settings, clicks and previews.
 
 The insertion itself is `Engine.insert`, which calls what `gaffer-diffusion insert` calls
 (`gaffer_diffusion.insert`: `light_from_photo`, `resolve_placement`, `insert_object`). This module
@@ -43,7 +43,7 @@ __all__ = [
 
 InsertShadow = Literal["2d", "none"]
 """The app's shadow choices: `insert --shadow 2d` (the pixel-height shadow) or `none` (Blender's
-`cycles` shadow is not built yet, issue 32)."""
+`cycles` shadow needs bpy in the server's environment)."""
 
 INSERT_SHADOWS: tuple[InsertShadow, ...] = ("2d", "none")
 

@@ -45,7 +45,8 @@ def serve(config: AppConfig) -> int:
     # Gradio reads these when imported: no telemetry or version check, its cache inside our folder.
     os.environ["GRADIO_ANALYTICS_ENABLED"] = "False"
     os.environ["GRADIO_TEMP_DIR"] = str(root / "gradio")
-    # torch's compiler cache defaults to $TMPDIR/torchinductor_$USER and outlived the server (issue 36)
+    # torch's compiler cache defaults to $TMPDIR/torchinductor_$USER and outlived the server: keep
+    # it in the server's own folder, removed when it stops
     os.environ.setdefault("TORCHINDUCTOR_CACHE_DIR", str(root / "torchinductor"))
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:

@@ -40,7 +40,7 @@ def _sha256(path: Path) -> str:
 
 
 def _verified_envmap(path: Path, name: str, expected: str, moved: bool) -> Path:
-    """`path`, once its sha256 matches the `source_sha256` its manifest recorded (issue 17): a map of
+    """`path`, once its sha256 matches the `source_sha256` its manifest recorded: a map of
     the right name but other content would score every pair against the wrong lighting."""
     if not expected:
         return path  # an older manifest without the digest: nothing to check against

@@ -1,5 +1,5 @@
 """Geometry a photo gives: a learned estimator of camera-frame normals (`estimator`), which feeds the
-radiance hints of models with `ModelConfig.hint_geometry == "estimated"` (issue 31)."""
+radiance hints of models with `ModelConfig.hint_geometry == "estimated"` (gaffer-tiny 0.5)."""
 
 from jaxtyping import Float
 from torch import Tensor

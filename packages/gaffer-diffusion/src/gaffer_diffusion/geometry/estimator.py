@@ -2,7 +2,7 @@
 
 Why: gaffer-tiny's radiance hints (`gaffer_diffusion.hints`) render the input's shape under the target
 light. Normals of a dome inflated from the silhouette cannot say which facet of an object faces the
-light, so a model fed them recolours the input instead of re-shading it (issue 31). DiLightNet
+light, so a model fed them recolours the input instead of re-shading it. DiLightNet
 (Zeng et al. 2024) renders its hints from an estimated geometry; this is the same idea at CPU scale: a
 diffusers `UNet2DModel` (no time conditioning is used: the timestep is always 0) takes `[RGB on white,
 mask, silhouette-dome normals]` and predicts a correction added to the dome before normalising (its

@@ -40,9 +40,9 @@ class RuntimeConfig:
         compile_mode: `torch.compile` mode, e.g. "max-autotune"; None for the default.
         compile_backend: `torch.compile` backend ("inductor"; "eager" only checks the wiring).
         autocast: keep the networks in float32 and run the UNet under `torch.autocast` in `dtype`
-            (float16 or bfloat16) instead of casting the weights: the authors' fp16 inference (issue
-            15, reading 4). The encoders and the VAE decoder stay float32 (our reading: they name
-            fp16 autocast for the UNet only). CLI: `--dtype float16` on CUDA with `--compat
+            (float16 or bfloat16) instead of casting the weights: the authors' fp16 inference (our
+            reading of their inference script). The encoders and the VAE decoder stay float32
+            (our reading: they name fp16 autocast for the UNet only). CLI: `--dtype float16` on CUDA with `--compat
             neural-gaffer`.
     """
 

@@ -3,7 +3,7 @@
 All samplers share the training schedule of `SchedulerConfig` (scaled-linear betas 0.00085-0.012, 1000
 steps, epsilon prediction). DDIM with 50 "leading" steps and eta 0 is the paper's setting (and the
 default under `--compat neural-gaffer`); DPM-Solver++ (2M, `"dpmpp-2m"`) and UniPC (bh2) are diffusers'
-second-order multistep solvers that reach similar quality in 15-25 steps (issue 35). They convert
+second-order multistep solvers that reach similar quality in 15-25 steps. They convert
 epsilon, v and sample predictions to the same data prediction, so every checkpoint's prediction type
 runs; a prediction type diffusers' solvers do not take is refused by `make_scheduler`.
 """

@@ -2,7 +2,7 @@
 
 A model trained on object-centred square crops (gaffer-tiny: the object's longer side spans 75% of
 the square, the `object_fraction` of its `RelightPipeline.default_sampling`) relights a whole multi-view
-frame, where the object may span 40% of it, much worse than its own crops (issue 20: the full
+frame, where the object may span 40% of it, much worse than its own crops (the full
 method lost to SDS until the views were framed). So every path that shows a view to the model
 (encoding the inputs, Stage 1's relit views, Stage 2's renders and SDS) crops it with the same
 per-view square `ViewFraming.crop`, and Stage 1's relit crops go back into the frame with

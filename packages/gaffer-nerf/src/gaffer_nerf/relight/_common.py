@@ -21,7 +21,7 @@ class StageReport:
         sds_non_finite: Stage 2 with the SDS loss: gradient values that were NaN or infinite and were
             zeroed (0 otherwise; see `DiffusionGuide.sds_non_finite`).
         skipped_targets: Stage 2 with the guidance loss: steps whose target had lost the object
-            (faded to white or black where the render holds it) and were not taken (issue 36).
+            (faded to white or black where the render holds it) and were not taken.
     """
 
     name: str

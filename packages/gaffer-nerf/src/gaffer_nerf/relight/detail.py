@@ -3,14 +3,14 @@
 A small relighting model (gaffer-tiny: 128 px, one DDIM step) gets the light right but blurs and
 speckles the object's texture, and Stage 1 (paper Eq. 2) bakes whatever the relit views hold into
 the field: on the real-render benchmark the relit field's ST-LPIPS was worse than the unrelit
-field's. The photo path solved the same problem with detail transfer (`gaffer_diffusion.detail_transfer`,
-issue 16): take from the model only the change of shading, `rho = relit / input` in linear light,
+field's. The photo path solved the same problem with detail transfer (`gaffer_diffusion.detail_transfer`):
+take from the model only the change of shading, `rho = relit / input` in linear light,
 and apply it to the input, `(input_lin + eps) rho - eps`. Here both images are at the view's resolution, so the ratio is smoothed
 instead of upsampled: its log is averaged over a (2r+1)^2 box after the pixels near the silhouette
 (where the input blends object and white backdrop) are refilled from the interior by push-pull.
 Where the light changes slowly the input's texture survives; a change of light sharper than the box
 is softened. The radius of the tiny preset was chosen on a validation split
-(`benchmarks/bench_nerf_stage1_val.py`).
+(`python benchmarks/nerf_sweep.py run stage1`, `benchmarks/results/nerf_stage1_val.json`).
 """
 
 import numpy as np

@@ -1,7 +1,7 @@
-"""Stop a relighting run whose renders have left their targets: white-out, black-out, NaN (issue 36).
+"""Stop a relighting run whose renders have left their targets: white-out, black-out, NaN.
 
 Both stages only change the appearance, so a relit field that renders its training views white (or
-black) where the frozen density holds the object has not relit it but erased it. Issue 36 saw this
+black) where the frozen density holds the object has not relit it but erased it. We saw this
 from the CLI's paper preset on a small field: masked PSNR 6.4 dB against 15.7 for the unrelit field,
 with a report that said nothing had gone wrong. The check compares the renders with what the run
 fitted them to (Stage 1's targets, else the input views) over the object's pixels only (the field's
