@@ -1,4 +1,4 @@
-"""Precision and memory layout of inference: `--dtype auto` and the fast CPU path (issue 35).
+"""Precision and memory layout of inference: `--dtype auto` and the fast CPU path.
 
 The authors run their UNet under fp16 autocast with xformers on a GPU (official implementation §2)
 and have no CPU path; in float32 on a 2-core CPU the paper-size model takes about 3 minutes per image

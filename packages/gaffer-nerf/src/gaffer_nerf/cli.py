@@ -346,8 +346,8 @@ def _fit(args: argparse.Namespace) -> int:
     res = fit_tensorf(
         scene.train, cfg, heldout=heldout, device=device, progress=not args.no_progress
     )
-    # the field and its report: all three files or none (issue 36)
-    # the preset goes with the field: `relight` takes its own from it (issue 36)
+    # the field and its report: all three files or none (a killed save leaves the old set)
+    # the preset goes with the field: `relight` takes its own from it
     report = json.dumps({"preset": args.preset, **_jsonable(res.report)}, indent=2)
     save_field(res.field, args.out, extra={"fit_report.json": report})
     rep = res.report
@@ -457,7 +457,7 @@ def _relight_preset_name(args: argparse.Namespace) -> tuple[PresetName, str, str
     """`relight`'s preset, why, and the fit's preset to record: `--preset`, else the field's fit's.
 
     A tiny field relit with the paper's 2,500 + 500 steps at the paper's learning rates took 11
-    minutes and whitened the object (issue 36); a field takes the preset it was fitted with.
+    minutes and whitened the object; a field takes the preset it was fitted with.
     """
     recorded = preflight.read_field_preset(args.field)
     if args.preset is not None:

@@ -387,12 +387,12 @@ class DiffusionSamplingConfig:
         shared_noise: every view of Stage 1 starts from the same initial noise (seed `seed`, and
             the same posterior noise with `latent_mode="sample"`), so the relit views differ only
             where their inputs and lightings do. False (default): view i uses seed `seed + i`.
-            Measured (issue 20, `benchmarks/bench_nerf.py`, gaffer-tiny 0.4 on the sphere scene,
+            Measured (`benchmarks/bench_nerf.py`, gaffer-tiny 0.4 on the sphere scene,
             16-frame closed orbit, one run): shared noise cuts the relit views' flicker by 31%
             (`gaffer_nerf.flicker`, 0.064 -> 0.044) but costs 0.8 dB, and the Stage-1 field fitted to
             them flickers 3% less and scores 0.64 dB lower: the field averages independent per-view
             noise away and bakes in noise shared by every view. On real renders it goes the other
-            way: on the validation split of `benchmarks/bench_nerf_noise_val.py` (3 unseen objects,
+            way: on the validation split (`python benchmarks/nerf_sweep.py run noise`: 3 unseen objects,
             full method, gaffer-tiny) shared noise scored +0.88 dB object PSNR (5/6 pairs) and
             ST-LPIPS 0.205 vs 0.220. At gaffer-tiny's own 128 px (the CLI defaults' validation,
             `benchmarks/bench_nerf_cli_defaults.py --validation`) shared noise lost on every object
@@ -718,7 +718,7 @@ def fit_preset(name: PresetName) -> FitConfig:
                 # TensoRF's density L1 acts on each factor's mean, so on these small factors 8e-5 /
                 # 4e-5 pulls hundreds of times harder per element than on the paper's grid: it held
                 # a small object's density at zero (8.84 dB, background only). A tenth of it was
-                # chosen on the two validation splits (benchmarks/bench_nerf_l1_val.py, rule fixed
+                # chosen on the two validation splits (`python benchmarks/nerf_sweep.py run l1`, rule fixed
                 # before the run): object PSNR 21.18 vs 19.02 dB at the sizing rule's grid.
                 l1_weight_initial=8e-6,
                 l1_weight_rest=4e-6,
@@ -750,7 +750,7 @@ def relight_preset(name: PresetName, ablation: Ablation = "full") -> RelightConf
             return RelightConfig(
                 # Stage 1 fits the input views times gaffer-tiny's change of shading (box radius
                 # 2 px) rather than its blurred views: chosen on the validation split
-                # (benchmarks/bench_nerf_stage1_val.py, results/nerf_stage1_val.json; rule fixed
+                # (`python benchmarks/nerf_sweep.py run stage1`, results/nerf_stage1_val.json; rule fixed
                 # before the run: lowest ST-LPIPS within 0.25 dB of the model's own views): ST-LPIPS
                 # 0.216 vs 0.245, object PSNR 14.59 vs 14.66 dB.
                 stage1=Stage1Config(
@@ -762,7 +762,7 @@ def relight_preset(name: PresetName, ablation: Ablation = "full") -> RelightConf
                     transfer_radius_px=2,
                 ),
                 # Stage 2's learning rates a quarter of the paper's: chosen on a validation split
-                # (benchmarks/bench_nerf_stage2_val.py, results/nerf_stage2_val.json: 3 unseen
+                # (`python benchmarks/nerf_sweep.py run stage2`, results/nerf_stage2_val.json: 3 unseen
                 # objects x forest/studio, 20 steps; the rule, fixed before the run, took the best
                 # object PSNR: 14.68 dB vs the paper's 0.02/1e-3 14.56; Stage 1 alone 14.71). No
                 # setting tried beat Stage 1 alone there, in PSNR or in ST-LPIPS.

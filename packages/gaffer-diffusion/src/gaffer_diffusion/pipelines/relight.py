@@ -115,7 +115,7 @@ class RelightPipeline:
         default_sampling: DefaultSampling | None = None,
         source: Path | None = None,
     ) -> None:
-        # `dtype="auto"` resolved for this model; `dtype_choice` says what and why (issue 35)
+        # `dtype="auto"` resolved for this model; `dtype_choice` says what and why
         self.runtime, self.dtype_choice = resolve_runtime(model, runtime or RuntimeConfig())
         # read once (`load_pipeline` reads the model folder); callers only override it
         self.default_sampling: DefaultSampling = default_sampling or default_sampling_for(model)
@@ -176,7 +176,7 @@ class RelightPipeline:
             conditions,
             latent_mode=latent_mode,
             generator=generator,
-            photo_cache=self._photo_cache,  # one photo, many lightings: encoded once (issue 35)
+            photo_cache=self._photo_cache,  # one photo, many lightings: one VAE/CLIP encode
         )
 
     def initial_noise(
@@ -554,7 +554,8 @@ class RelightPipeline:
         generator: GeneratorArg,
         seeds: Sequence[int] | None,
     ) -> torch.Generator | list[torch.Generator] | None:
-        """RNG of the posterior samples of `latent_mode="sample"` (issue 15, reading 4).
+        """RNG of the posterior samples of `latent_mode="sample"` (the authors draw them from
+        the sampling seed; our reading of their inference script).
 
         The authors hand one seeded generator per item to their pipeline, which draws the initial
         noise and then the posterior samples from it. With `seeds`, each condition gets a CPU

@@ -9,7 +9,7 @@ and either
 - "sds": backpropagates the score-distillation gradient through the VAE encoder (the baseline).
 All learning rates are multiplied by `lr_gamma` (0.1^(1/200)) after every step, as the authors do.
 
-A guidance target that has lost the object is not followed (issue 36). The target is the model's
+A guidance target that has lost the object is not followed. The target is the model's
 partial denoise of the current render, so whatever it does to the object the next render inherits:
 on a 128 px Cycles object fitted with the tiny preset, gaffer-tiny's denoise from t* = 0.4 of the
 Stage-1 render returned the object as white, and the paper's Stage 2 (learning rate 0.02 for 500
