@@ -173,7 +173,7 @@ def _repo_relative(path: Path) -> str:
 
 
 def model_provenance(folder: Path | None = None) -> dict[str, Any]:
-    """Which model a result measured (issue 34): name, release version, the sha256 of every weights file.
+    """Which model a result measured: name, release version, the sha256 of every weights file.
 
     `folder` is a gaffer-diffusion model folder (`save_pretrained` / `gaffer-diffusion export`);
     None means the shipped gaffer-tiny. `shipped` is True only when the folder IS the shipped one, so

@@ -1,4 +1,4 @@
-"""Ground-truth scenes of `bench_insert.py` (issue 32, item 5), rendered with Blender Cycles.
+"""Ground-truth scenes of `bench_insert.py`, rendered with Blender Cycles.
 
 Run as a subprocess only (imports bpy; torch stays in the parent):
 

@@ -182,7 +182,7 @@ def evaluate(pairs: Any, quick: bool) -> dict[str, Any]:
         }
         for name in VARIANTS
     }
-    # which weights (issue 34): `load_model(None)` is the shipped gaffer-tiny
+    # which weights: `load_model(None)` is the shipped gaffer-tiny
     return {
         "model": common.model_provenance(),
         "model_resolution": size,

@@ -43,7 +43,7 @@ import torch
 NAME_SPEED = "diffusion_speed"
 NAME_STEPS = "diffusion_steps"
 NAME_QUALITY = "diffusion_quality"
-TARGET_SPEEDUP = 5.0  # issue 4: ours >= 5x the authors' images/s at the same steps (H100/H200)
+TARGET_SPEEDUP = 5.0  # ours >= 5x the authors' images/s at the same steps (H100/H200)
 TARGET_MS_PER_IMAGE = 50.0  # issue 4: < 50 ms per image at 50 steps with CFG, large batch
 
 
@@ -546,7 +546,7 @@ def run_quality(args: argparse.Namespace, meta: dict[str, Any]) -> list[str]:
                 "PNG reading + scoring, per pair"
             ),
         },
-        # what was measured (issue 34): the weights' and the example's manifest sha256
+        # what was measured: the weights' and the example's manifest sha256
         "model": common.model_provenance(),
         "data": common.data_provenance(example_dataset_path()),
         "baselines": base,

@@ -99,7 +99,7 @@ def theirs_encode(
     # Step 2: d_world = d_local (A R), row vectors.
     d = d_local @ (_A @ np.asarray(w2c, np.float64)[:3, :3])
     # Step 4 (their lookup): Blender equirect, z up.
-    th2 = np.arccos(np.clip(d[..., 2], -1.0, 1.0)) - 1e-6  # their theta offset (issue 15)
+    th2 = np.arccos(np.clip(d[..., 2], -1.0, 1.0)) - 1e-6  # their theta offset
     ph2 = np.arctan2(d[..., 1], d[..., 0])
     grid = np.clip(np.stack([-ph2 / np.pi, 2 * th2 / np.pi - 1], -1), -(1 - 1e-7), 1 - 1e-7)
     img = torch.from_numpy(env).permute(2, 0, 1)[None].float()
@@ -458,7 +458,7 @@ def main(argv: list[str] | None = None) -> int:
         ]
 
     # The default encoding is what `encode_lighting` does without options: the conservative filter at
-    # supersample 2 (issue 18). The other default-mode rows (ss1, area) are shown beside it.
+    # supersample 2. The other default-mode rows (ss1, area) are shown beside it.
     best_default = max(ratio("default", filter="conservative", supersample=DEFAULT_SUPERSAMPLE))
     default_b1 = ratio(
         "default", filter="conservative", supersample=DEFAULT_SUPERSAMPLE, batch_size=1

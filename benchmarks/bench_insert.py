@@ -1,4 +1,4 @@
-"""Object insertion on Blender ground truth (issue 32, item 5): lighting and shadow modes of `insert`.
+"""Object insertion on Blender ground truth: lighting and shadow modes of `insert`.
 
 Scenes (`_insert_scenes.py`, rendered by Cycles in a subprocess): a procedural object of gaffer-data's
 recipe standing on a shadow-catcher ground under a bundled HDRI held out from gaffer-tiny's training

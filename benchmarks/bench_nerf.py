@@ -195,7 +195,7 @@ def run_flicker(
     env1: Any,
     models: Sequence[str] = ("gaffer-tiny",),
 ) -> dict[str, Any]:
-    """Multi-view consistency (issue 20 item 3) along a closed test orbit under the target lighting.
+    """Multi-view consistency along a closed test orbit under the target lighting.
 
     2D: every orbit frame of the input lighting relit by the diffusion model as Stage 1 relights its
     training views, per-view vs shared initial noise, mirror average off / on; `temporal_flicker`

@@ -1,4 +1,4 @@
-"""gaffer-nerf's command line with its defaults, as a new user runs it (issue 36 item 1).
+"""gaffer-nerf's command line with its defaults, as a new user runs it.
 
 Two procedural objects that no test and no earlier choice used (`gaffer-data recipe --procedural 2
 --seed 61`) are rendered by `gaffer-data render-multiview` (Blender Cycles, 128 px, 32 samples +

@@ -1,4 +1,4 @@
-"""Re-shading, not recolouring (issue 31): relighting quality vs training time and parameters, by where
+"""Re-shading, not recolouring: relighting quality vs training time and parameters, by where
 the radiance hints' geometry comes from.
 
 Each row is a model folder (a gaffer-tiny release or an exported training checkpoint) scored on a

@@ -1,4 +1,4 @@
-"""Nonsense numbers and paths are refused with the argument named (issue 17)."""
+"""Nonsense numbers and paths are refused with the argument named."""
 
 import numpy as np
 import pytest
@@ -134,7 +134,7 @@ def test_pool_check_passes_good_maps_and_reads_radiance_headers(tmp_path):
 
 def _output_fixtures(tmp_path):
     """A file where a folder is expected, a folder where a file is, and output folders whose
-    slots (a file the command writes, or a sub-folder) hold the wrong kind (issue 36)."""
+    slots (a file the command writes, or a sub-folder) hold the wrong kind."""
     (tmp_path / "afile").write_text("a file where a folder is expected")
     (tmp_path / "adir").mkdir()
     (tmp_path / "rec").mkdir()

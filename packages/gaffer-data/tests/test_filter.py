@@ -160,7 +160,7 @@ def test_classifier_needs_enough_labels(tmp_path: Path, objects: Path) -> None:
 def test_filter_without_the_mesh_libraries_refuses_in_one_line(
     objects: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, missing: str
 ) -> None:
-    """Issue 17: without trimesh every object was rejected "not installed" and the run exited 0."""
+    """Without trimesh every object was rejected "not installed" and the run exited 0."""
     import builtins
 
     real_import = builtins.__import__

@@ -1,4 +1,4 @@
-"""`--backend ray` on several nodes (issue 36): a simulated two-node cluster on this machine
+"""`--backend ray` on several nodes: a simulated two-node cluster on this machine
 (`ray.cluster_utils.Cluster`: a head and a worker node, each its own raylet with 1 CPU).
 
 - a render spread over both nodes gives the images of a local render;

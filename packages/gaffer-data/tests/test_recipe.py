@@ -54,7 +54,7 @@ def test_build_default_recipe(tmp_path: Path) -> None:
 
 
 def test_a_failed_procedural_build_leaves_no_partial_objects(tmp_path, monkeypatch):
-    # issue 17: a recipe stopped mid-build left 16 of 400 objects with no marker
+    # a recipe stopped mid-build left 16 of 400 objects with no marker
     import subprocess
 
     import gaffer_data.recipes as recipes

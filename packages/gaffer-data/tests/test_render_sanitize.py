@@ -1,4 +1,4 @@
-"""`gaffer-data render --sanitize` (issue 17 item 5): every `--envmaps` map is checked in the parent
+"""`gaffer-data render --sanitize`: every `--envmaps` map is checked in the parent
 before any object renders, the policy is part of the render config (so a resume with another policy is
 refused), and the workers render the sanitized pixels. No Blender needed: the dispatch is faked."""
 

@@ -1,4 +1,4 @@
-"""Canary: the jaxtyping + beartype import hook is on for `gaffer_data` in these tests (issue 14).
+"""Canary: the jaxtyping + beartype import hook is on for `gaffer_data` in these tests.
 
 The root pyproject's pytest `addopts` pass `--jaxtyping-packages=...,gaffer_data,...,beartype.beartype`;
 jaxtyping's pytest plugin installs the hook before any conftest or test module runs, so `gaffer_data`

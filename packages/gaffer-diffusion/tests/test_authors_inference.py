@@ -1,4 +1,4 @@
-"""The authors' inference (issue 15, reading 4): posterior-sampled conditioning latents, seeded per item,
+"""The authors' inference: posterior-sampled conditioning latents, seeded per item,
 and the fp16 autocast path (weights float32, UNet under `torch.autocast`)."""
 
 import dataclasses
@@ -123,7 +123,7 @@ def test_cli_defaults_follow_the_compat_reading() -> None:
 
 
 def test_cli_turntable_frames_are_the_authors_frames_in_order(tmp_path) -> None:
-    """`relight --turntable N --compat neural-gaffer`: frame k is their frame k of N (issue 15, 1)."""
+    """`relight --turntable N --compat neural-gaffer`: frame k is their frame k of N."""
     import numpy as np
 
     from gaffer_diffusion.cli import _envmap_lighting, _parser

@@ -1,4 +1,4 @@
-"""`relight_in_batches` (issue 14 item 3): the one batching loop gives the images of one call."""
+"""`relight_in_batches`: the one batching loop gives the images of one call."""
 
 import torch
 

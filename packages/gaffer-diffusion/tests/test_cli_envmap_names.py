@@ -1,4 +1,4 @@
-"""`relight --envmap NAME` takes the HDRIs bundled with gaffer-envmap by name (issue 17)."""
+"""`relight --envmap NAME` takes the HDRIs bundled with gaffer-envmap by name."""
 
 from pathlib import Path
 

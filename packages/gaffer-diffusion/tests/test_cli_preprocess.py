@@ -95,7 +95,7 @@ def test_cli_errors_are_clear(tmp_path, model_dir, capsys) -> None:
     maps = ["--ldr", str(tmp_path / "a.png"), "--hdr", str(tmp_path / "b.png")]
     args = ["relight", str(tmp_path / "rgb.png"), *maps]
     args += ["--checkpoint", str(model_dir), "--out", str(tmp_path / "o.png")]
-    # no alpha and no --mask: the mask is estimated (issue 36); a flat grey picture has no object
+    # no alpha and no --mask: the mask is estimated; a flat grey picture has no object
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "no alpha channel, so its object mask" in err and "--mask MASK.png" in err
@@ -124,7 +124,7 @@ def test_cli_evaluate(tmp_path) -> None:
 
 
 def test_turntable_frames_are_complete_or_absent(tmp_path, model_dir, monkeypatch) -> None:
-    """Issue 17: a turntable that fails while writing leaves an earlier run's frames as they were;
+    """A turntable that fails while writing leaves an earlier run's frames as they were;
     one that finishes leaves none of the earlier run's extra frames (fewer frames, other format)."""
     pytest.importorskip("gaffer_envmap.encode")
     from gaffer_diffusion import _video

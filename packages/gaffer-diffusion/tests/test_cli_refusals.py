@@ -1,4 +1,4 @@
-"""Bad arguments are refused before torch is imported or a model loaded (issue 17, items 2 and 4).
+"""Bad arguments are refused before torch is imported or a model loaded.
 
 Every case runs in one fresh interpreter, which must end without `torch` or `diffusers` in
 `sys.modules`: that is what makes a refusal take a fraction of a second instead of seconds. Each
@@ -33,7 +33,7 @@ def _files(tmp: Path) -> dict[str, str]:
     (tmp / "adir").mkdir()
     (tmp / "emptydir").mkdir()
     Image.fromarray(rgba).save(tmp / "q_mask.png")  # a photo named like prepare's second output
-    # issue 36: output folders whose slots hold the wrong kind (a folder where a file goes, or the
+    # output folders whose slots hold the wrong kind (a folder where a file goes, or the
     # reverse), and a folder of images for the grid mode
     for slot in ("slot/o.mask.png", "spin/t_000.png", "prep/q_mask.png", "nrm/n.mask.png"):
         (tmp / slot).mkdir(parents=True)
@@ -105,7 +105,7 @@ def _cases(tmp: Path) -> list[tuple[list[str], str, str | None]]:
         (["prepare", str(tmp / "garbage.png"), "--out", out], "not a readable image", out),
         (["init-random", "--out", str(Path(afile) / "m")], "`--out`", None),
         (["train", "--config", str(tmp / "garbage.json")], "not valid JSON", None),
-        # issue 36: bad output paths, before any work
+        # bad output paths, before any work
         (relight(out=good), "is the input `IMAGE`", None),
         (relight(out=str(tmp / "slot" / "o.png")), "o.mask.png is a folder", None),
         (relight("--turntable", "2", out=str(tmp / "spin" / "t.png")), "t_000.png is a folder",

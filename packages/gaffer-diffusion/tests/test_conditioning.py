@@ -119,7 +119,7 @@ def test_wrong_resolution_raises(model) -> None:
 
 
 def test_lighting_uses_the_filter_the_model_was_trained_with() -> None:
-    """gaffer-envmap's default rotation filter became the power-exact "conservative" one (issue 18);
+    """gaffer-envmap's default rotation filter became the power-exact "conservative" one;
     gaffer-tiny was trained on "area" maps, so every sampling path must keep asking for "area"
     (`LIGHTING_FILTER`) rather than follow the library default. A sub-pixel sun tells the two apart."""
     import numpy as np

@@ -321,7 +321,7 @@ def test_metrics_json_is_strict_json(demo_out) -> None:
 def test_a_failed_rerun_leaves_the_earlier_folder_as_it_was(
     tmp_path, model_dir, example, monkeypatch, failure
 ) -> None:
-    """Issue 17: the demo folder is complete or absent; a rerun that fails (an error, Ctrl-C) while
+    """The demo folder is complete or absent; a rerun that fails (an error, Ctrl-C) while
     writing leaves the earlier run's files untouched, and a finished rerun leaves none of them."""
     from gaffer_diffusion.demo import run as demo_run  # run_demo looks render_html up there
 

@@ -385,7 +385,7 @@ def test_evaluate_dataset_object_fraction_crops_input_target_and_mask(dataset) -
 
 
 def test_envmaps_with_the_right_names_but_other_pixels_are_refused(tmp_path, capsys) -> None:
-    """Issue 17: each manifest records the maps' sha256; `--envmaps` maps that differ are refused."""
+    """Each manifest records the maps' sha256; `--envmaps` maps that differ are refused."""
     import shutil
 
     from gaffer_envmap import EnvironmentMap, write_envmap

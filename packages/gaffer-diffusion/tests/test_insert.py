@@ -1,4 +1,4 @@
-"""`gaffer-diffusion insert` (issue 32, item 3): an object photo relit under a background's lighting,
+"""`gaffer-diffusion insert`: an object photo relit under a background's lighting,
 placed by `--at` / `--height`, with a pixel-height shadow; the rest of the background byte for byte.
 
 The background is a perspective view of a bundled HDRI (what a camera at the map's centre sees), the

@@ -1,4 +1,4 @@
-"""`gaffer-diffusion insert --light-source NAME` (issue 32 item 2): a lighting source plugin (entry
+"""`gaffer-diffusion insert --light-source NAME`: a lighting source plugin (entry
 point group `gaffer.envmap_sources`) makes the lighting, from the background photo (a light estimator)
 or from `--light-text` (a text-to-HDR model, or the built-in "sky"). The plugin is a distribution
 written on the fly (`gaffer_envmap.testing.write_plugin_distribution`), found by importlib.metadata as

@@ -1,4 +1,4 @@
-"""Relighting a photo at its own size (issue 16): reading the photos people have, the model's framing,
+"""Relighting a photo at its own size: reading the photos people have, the model's framing,
 paste-back with detail transfer, automatic masks, and the relight / prepare CLI around them."""
 
 import io
@@ -105,7 +105,7 @@ def test_push_pull_fills_holes_and_keeps_known_pixels() -> None:
     assert torch.isfinite(out).all() and out[0, 1:3, 1:3].min() > 0
 
 
-# ----- inputs people have (issue 16, item 5) -----
+# ----- inputs people have -----
 
 
 def test_exif_orientation_is_applied(tmp_path) -> None:

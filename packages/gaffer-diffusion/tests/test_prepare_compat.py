@@ -1,6 +1,6 @@
-"""The authors' real-image preparation (issue 15, reading 3) against an independent numpy twin.
+"""The authors' real-image preparation against an independent numpy twin.
 
-Acceptance (issue 15): within 1 LSB on >= 99.9% of values. We also ask for >= 99.9% exactly equal,
+Acceptance: within 1 LSB on >= 99.9% of values. We also ask for >= 99.9% exactly equal,
 because a step that only moves values by one LSB (rounding instead of truncation) would pass the first.
 Each reverted reading (the twin's keyword switches) must break that, on a photo built so that every
 reading matters: a soft alpha halo, an odd-sized box, a side that is not an integer, texture.
@@ -145,7 +145,7 @@ def test_cli_prepare_writes_their_steps_and_the_mask(tmp_path: Path, capsys) -> 
     assert main(["prepare", str(tmp_path / "obj.png"), "--out", str(tmp_path / "ours.png")]) == 0
     with Image.open(tmp_path / "ours.png") as im:
         assert _agree(np.asarray(im), got)[1] < 0.99
-    # an RGB photo without `--mask`: its mask is estimated, as in the app (issue 36), and written
+    # an RGB photo without `--mask`: its mask is estimated, as in the app, and written
     # beside the outputs as prep.mask.png
     pytest.importorskip("cv2")
     Image.fromarray(rgb).save(tmp_path / "rgb.png")

@@ -1,4 +1,4 @@
-"""`relight --sanitize` defaults to gaffer-envmap's own policy, "raise" (issue 17 item 5): the tiny
+"""`relight --sanitize` defaults to gaffer-envmap's own policy, "raise": the tiny
 negatives of lossy compression (7 of the 8 bundled HDRIs) become 0 with an INFO line, a NaN map is
 refused in one line naming the flag (the default was "zero", which zeroed it silently)."""
 

@@ -1,4 +1,4 @@
-"""Quality regression tests of the shipped learned components on the shipped example (issue 34 item 4).
+"""Quality regression tests of the shipped learned components on the shipped example.
 
 The example object (`gaffer_diffusion/data/example/`, a faceted icosphere in no training split) ships
 with its ground-truth renders under the 8 bundled HDRIs, so the shipped gaffer-tiny can be scored on

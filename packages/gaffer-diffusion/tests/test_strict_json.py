@@ -1,4 +1,4 @@
-"""Reports are strict JSON (issue 17): an infinite PSNR (identical images) is null plus a flag."""
+"""Reports are strict JSON: an infinite PSNR (identical images) is null plus a flag."""
 
 import json
 import math

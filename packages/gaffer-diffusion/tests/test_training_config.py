@@ -1,4 +1,4 @@
-"""Training config: paper defaults, strict JSON parsing, shipped configs (issue 5)."""
+"""Training config: paper defaults, strict JSON parsing, shipped configs."""
 
 import json
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""Training data: samples, compositing, determinism, resumable sharded order, broken files (issue 5)."""
+"""Training data: samples, compositing, determinism, resumable sharded order, broken files."""
 
 import logging
 from pathlib import Path
@@ -169,7 +169,7 @@ def test_batched_lighting_matches_one_by_one(root: Path) -> None:
             env[i].numpy(),
             w2c[i].double().numpy(),
             size=16,
-            filter=LIGHTING_FILTER,  # the model's filter, not the library default (issue 18)
+            filter=LIGHTING_FILTER,  # the model's filter, not the library default
             supersample=LIGHTING_SUPERSAMPLE,
         )
         torch.testing.assert_close(ldr[i], one.ldr[0], atol=1e-5, rtol=0)

@@ -1,5 +1,5 @@
 """The training loop: exact resume, frozen parts, checkpoints (atomic, rotated, SIGTERM), NaN handling,
-logging and validation, the CLI (issue 5). Tiny random-init model, 32 px synthetic renders, CPU."""
+logging and validation, the CLI. Tiny random-init model, 32 px synthetic renders, CPU."""
 
 import json
 import os
@@ -148,7 +148,7 @@ def test_a_failing_end_training_is_logged_and_counted_and_a_bug_there_propagates
     monkeypatch: pytest.MonkeyPatch,
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    # issue 34: every exception around end_training() was suppressed; now only the teardown's own
+    # every exception around end_training() was suppressed; now only the teardown's own
     # failures (RuntimeError from torch.distributed, OSError from a tracker) are, logged and counted
     from accelerate import Accelerator
 

@@ -1,4 +1,4 @@
-"""Canary: the jaxtyping + beartype import hook is on for `gaffer_diffusion` in these tests (issue 14).
+"""Canary: the jaxtyping + beartype import hook is on for `gaffer_diffusion` in these tests.
 
 The root pyproject's pytest `addopts` pass `--jaxtyping-packages=...,gaffer_diffusion,...,beartype.beartype`;
 jaxtyping's pytest plugin installs the hook before any conftest or test module runs, so

@@ -114,7 +114,7 @@ def test_demo_runs_on_the_bundled_hdri(tmp_path: Path) -> None:
 
 
 def test_encode_compat_spin_is_the_authors_frame(scene: tuple[Path, Path], tmp_path: Path) -> None:
-    """`encode --compat neural-gaffer --spin D` writes their turntable frame k = D / 360 * N (issue 15)."""
+    """`encode --compat neural-gaffer --spin D` writes their turntable frame k = D / 360 * N."""
     from gaffer_envmap.testing import reference_neural_gaffer
 
     src, w2c = scene

@@ -1,4 +1,4 @@
-"""`gaffer-envmap info --sanitize POLICY` reports what the policy would do, refusing nothing (issue 17)."""
+"""`gaffer-envmap info --sanitize POLICY` reports what the policy would do, refusing nothing."""
 
 import json
 from pathlib import Path

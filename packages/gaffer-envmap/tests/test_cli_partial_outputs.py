@@ -1,4 +1,4 @@
-"""Multi-file outputs of `gaffer-envmap` are complete or absent (issue 17, item 3)."""
+"""Multi-file outputs of `gaffer-envmap` are complete or absent."""
 
 import os
 import signal
@@ -101,7 +101,7 @@ def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> No
         if staged >= 3:
             break
         time.sleep(0.02)
-    # issue 34: this used to skip, so a crash at start-up read as a skip. Writing 1024 maps takes
+    # this used to skip, so a crash at start-up read as a skip. Writing 1024 maps takes
     # far longer than the 20 ms poll that sees the third staged file, so an exit here is a failure.
     rc = proc.poll()
     assert rc is None, f"augment exited with {rc} before it could be killed:\n{log.read_text()}"
@@ -158,7 +158,7 @@ def test_encode_into_a_new_folder_failing_leaves_no_folder(
 
 
 def test_a_refusal_comes_before_torch_is_imported(tmp_path: Path) -> None:
-    # issue 17 item 2: the CLI imports the torch-backed rotate/encode only once the inputs are good
+    # the CLI imports the torch-backed rotate/encode only once the inputs are good
     code = (
         "import sys; from gaffer_envmap.cli import main; "
         "rc = main(['rotate', 'missing.exr', 'o.exr', '--w2c', 'missing.npy']); "

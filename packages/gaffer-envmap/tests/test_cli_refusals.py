@@ -1,4 +1,4 @@
-"""Nonsense numbers and paths are refused with the argument named (issue 17)."""
+"""Nonsense numbers and paths are refused with the argument named."""
 
 import os
 
@@ -48,7 +48,7 @@ def _slot(tmp_path, name):
     return str(tmp_path / "slots")
 
 
-# (argv with {S} = source map, {W} = w2c, {T} = tmp folder; words in the error; issue 36)
+# (argv with {S} = source map, {W} = w2c, {T} = tmp folder; words in the error)
 OUTPUT_CASES = [
     ("rotate {S} {T}/adir --w2c {W}", "`dst`"),
     ("rotate {S} {T}/afile --w2c {W}", "`dst`"),

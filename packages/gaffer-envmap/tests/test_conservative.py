@@ -1,4 +1,4 @@
-"""The power-exact default rotation filter (issue 18): power, direction, exactness, no negatives."""
+"""The power-exact default rotation filter: power, direction, exactness, no negatives."""
 
 import math
 

@@ -48,7 +48,7 @@ def _textured(seed: int) -> np.ndarray:
 
 
 def test_compat_subtracts_the_authors_theta_offset() -> None:
-    """Issue 15, reading 2: theta = arccos(z) - 1e-6. Without it ~0.1-0.2% of values move by one."""
+    """Theta = arccos(z) - 1e-6. Without it ~0.1-0.2% of values move by one."""
     env, pose = _textured(3), orbit_w2c_blender(37, 20, 1.8)
     ldr, hdr = encode_lighting(env, pose, size=64, compat="neural-gaffer").to_uint8()
     with_l, with_h = reference_neural_gaffer(env, pose.matrix, 64)

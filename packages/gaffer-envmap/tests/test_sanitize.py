@@ -99,7 +99,7 @@ def test_unknown_policy() -> None:
 def test_raise_sets_tiny_compression_negatives_to_zero_with_an_info_line(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    # issue 17: lossy EXR compression leaves a few negatives far below the map's scale
+    # lossy EXR compression leaves a few negatives far below the map's scale
     x = np.ones((8, 16, 3), np.float32)
     x[2, 3, 1] = -1e-3
     x[5, 7, 0] = -4e-2

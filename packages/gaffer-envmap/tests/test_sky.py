@@ -1,4 +1,4 @@
-"""Physical skies, the ephemeris, the phrase grammar and `gaffer-envmap sky` (issue 32 item 1)."""
+"""Physical skies, the ephemeris, the phrase grammar and `gaffer-envmap sky`."""
 
 import importlib.util
 import itertools
@@ -52,7 +52,7 @@ def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def test_azimuth_follows_blenders_sun_rotation_in_the_blender_lat_long() -> None:
-    # sun_rotation 0 points at world +y, 90 degrees at +x (issue 32), z up
+    # sun_rotation 0 points at world +y, 90 degrees at +x, z up
     np.testing.assert_allclose(sun_direction(0, 0), [0, 1, 0], atol=1e-12)
     np.testing.assert_allclose(sun_direction(0, 90), [1, 0, 0], atol=1e-12)
     np.testing.assert_allclose(sun_direction(0, 180), [0, -1, 0], atol=1e-12)

@@ -1,4 +1,4 @@
-"""Lighting sources as entry points (issue 32 item 2): a plugin distribution written on the fly (a
+"""Lighting sources as entry points: a plugin distribution written on the fly (a
 `*.dist-info` with `entry_points.txt` on sys.path, as `importlib.metadata` finds an installed one)
 is listed, loaded, called with its options and checked, end to end through `gaffer-envmap`'s main()."""
 

@@ -57,7 +57,7 @@ def test_another_class_is_refused_first(tmp_path: Path) -> None:
 
 
 def test_a_failed_save_leaves_the_earlier_field_and_report(tmp_path: Path, monkeypatch) -> None:
-    """Issue 36: weights, config and report are one set, moved in together or not at all."""
+    """Weights, config and report are one set, moved in together or not at all."""
     import gaffer_nerf.checkpoint as checkpoint
 
     field, folder = _saved(tmp_path / "f")

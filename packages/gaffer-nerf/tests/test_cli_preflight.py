@@ -1,4 +1,4 @@
-"""Bad `gaffer-nerf` arguments are refused in one line before torch is imported (issue 17)."""
+"""Bad `gaffer-nerf` arguments are refused in one line before torch is imported."""
 
 import json
 import subprocess
@@ -106,7 +106,7 @@ CASES = [
     ("evaluate {field} --data {data} --target-lighting 1 --json {tmp}", "is a folder; pass a"),
     ("evaluate {field} --data {data} --target-lighting 1 --pred-dir {file}", "is a file"),
     ("evaluate {field} --data {data} --target-lighting 1 --json {under_file}", "not a folder"),
-    # issue 36: a file or folder the command writes inside its output folder is of the other kind,
+    # a file or folder the command writes inside its output folder is of the other kind,
     # or the output is one of the inputs
     ("fit {data} --out {slots}", "field.safetensors is a folder"),
     (RL + " --target-lighting 1 --out {slots}", "field.safetensors is a folder"),

@@ -1,4 +1,4 @@
-"""Stage-1 shading transfer: the model's change of light applied to the input views (issue 20)."""
+"""Stage-1 shading transfer: the model's change of light applied to the input views."""
 
 import dataclasses
 import inspect

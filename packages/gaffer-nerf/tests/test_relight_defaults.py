@@ -1,4 +1,4 @@
-"""Issue 36 item 1: relight's preset follows the fit, Stage 2 never follows a target that erased the
+"""Relight's preset follows the fit, Stage 2 never follows a target that erased the
 object, and a run whose renders diverge from their targets stops before writing anything."""
 
 import dataclasses
@@ -34,7 +34,7 @@ def _object_contrast(field, scene) -> float:
 
 def test_paper_stage2_does_not_follow_a_target_that_erased_the_object(fitted, scene) -> None:
     # gaffer-tiny's partial denoise of a Stage-1 render (t* = 0.4) returned the object as white on a
-    # 128 px Cycles object (issue 36); the paper's Stage 2 (learning rate 0.02, 500 steps) followed it
+    # 128 px Cycles object; the paper's Stage 2 (learning rate 0.02, 500 steps) followed it
     # into a white field. The same target here: all white.
     cfg = relight_preset("paper", "no-stage1")
     cfg = dataclasses.replace(cfg, stage2=dataclasses.replace(cfg.stage2, iterations=20))

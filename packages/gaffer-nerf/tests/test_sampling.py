@@ -1,4 +1,4 @@
-"""Every path that samples the relighting model uses the model's own suggested sampling (issue 20).
+"""Every path that samples the relighting model uses the model's own suggested sampling.
 
 The sampler is monkeypatched to record what it receives; a path that falls back to other defaults
 (the paper's 50 steps / CFG 3, no mirror average, the authors' encoding) fails here.

@@ -1,4 +1,4 @@
-"""The app's "Insert into a photo" tab (issue 32, item 4), in-process, without a browser or a server.
+"""The app's "Insert into a photo" tab, in-process, without a browser or a server.
 
 `Engine.insert` must give `gaffer-diffusion insert`'s picture byte for byte on the same inputs and
 seed; a click on the background is `--at X,Y`; a click on the lighting panorama is `--key-light

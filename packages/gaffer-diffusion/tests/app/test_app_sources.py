@@ -1,4 +1,4 @@
-"""The app's lighting from words (issue 32 item 2): a lighting source (the built-in "sky" or a plugin of
+"""The app's lighting from words: a lighting source (the built-in "sky" or a plugin of
 the entry-point group `gaffer.envmap_sources`) turns the words into the map the page previews and
 relights under. The engine is tested in-process with a plugin written on the fly; the page through
 its API, with the built-in source (the server is another process)."""

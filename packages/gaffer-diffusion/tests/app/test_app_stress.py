@@ -1,4 +1,4 @@
-"""`gaffer-diffusion app` under stress (issue 36), through gradio_client against a real server:
+"""`gaffer-diffusion app` under stress, through gradio_client against a real server:
 
 - a burst of concurrent requests: the good ones answered, those beyond the bounded queue refused at
   once in one line ("Queue is full"), nothing buffered without bound;
