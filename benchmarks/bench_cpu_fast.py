@@ -54,8 +54,8 @@ import torch
 
 NAME = "cpu_fast"
 LOCK = "/tmp/gaffer-cpu.lock"
-TARGET_50 = 3.0  # issue 35: >= 3x the authors' per-image time at 50 steps (precision and layout)
-TARGET_20 = 8.0  # issue 35: >= 8x with 20 steps
+TARGET_50 = 3.0  # >= 3x the authors' per-image time at 50 steps (precision and layout)
+TARGET_20 = 8.0  # >= 8x with 20 steps
 STEP_GRID = (5, 10, 15, 20, 25, 30, 40, 50)
 AGREEMENT_STEPS = 20
 STAGE1_VIEWS = 2

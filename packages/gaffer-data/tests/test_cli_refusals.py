@@ -187,7 +187,7 @@ def test_recipe_without_its_builder_writes_nothing(
     tmp_path, monkeypatch, capsys, flags, missing, words
 ):
     """A missing writer of the procedural objects (bpy, pybullet) is refused before the bundled
-    maps and sample meshes are copied (issue 36: it used to leave a half-written recipe)."""
+    maps and sample meshes are copied (it used to leave a half-written recipe)."""
     import importlib.util
 
     real = importlib.util.find_spec

@@ -431,7 +431,7 @@ def test_cli_folder_reports_a_failed_image_and_goes_on(tmp_path, model_dir, caps
     assert not list((tmp_path / "out").rglob(".*tmp*"))  # atomic writes leave no temporary file
 
 
-# ----- issue 36: a photo without a usable alpha gets the automatic mask by default -----
+# ----- a photo without a usable alpha gets the automatic mask by default -----
 
 
 def _no_alpha_photo(tmp_path: Path, kind: str) -> tuple[Path, np.ndarray]:

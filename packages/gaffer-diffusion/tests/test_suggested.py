@@ -1,4 +1,4 @@
-"""A model's suggested sampling travels in its folder (issue 14 item 4, issue 20 item 1)."""
+"""A model's suggested sampling travels in its folder."""
 
 import argparse
 import json

@@ -105,7 +105,7 @@ def test_split_is_deterministic_and_refuses_to_hold_out_every_object() -> None:
     assert split_object_ids(list(reversed(ids)), 3) == (train, val)
     assert split_object_ids(["a"], 0) == (("a",), ())
     assert len(split_object_ids(ids, 9)[0]) == 1  # the most that can be held out
-    # issue 17: `val_objects: 50` on 12 objects was cut to 11 silently, leaving 1 to train on
+    # `val_objects: 50` on 12 objects was cut to 11 silently, leaving 1 to train on
     for objects, num_val in ((ids, 10), (ids, 50), (["a"], 1)):
         with pytest.raises(ConfigError, match=r"`data\.val_objects`") as info:
             split_object_ids(objects, num_val)

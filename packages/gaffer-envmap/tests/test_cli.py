@@ -35,7 +35,7 @@ def test_info_json(scene: tuple[Path, Path], capsys: pytest.CaptureFixture[str])
 def test_info_reports_the_stored_minimum_of_a_map_with_negatives(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    # issue 17: `info` said min_value 0.0 for a map with 826 negative pixels
+    # `info` said min_value 0.0 for a map with 826 negative pixels
     from gaffer_envmap import write_envmap
 
     x = np.ones((8, 16, 3), np.float32)

@@ -115,7 +115,7 @@ def test_augment_killed_mid_run_leaves_no_final_named_file(tmp_path: Path) -> No
 def test_encode_failing_on_the_second_png_keeps_both_earlier_pngs(
     sky: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, exc: BaseException
 ) -> None:
-    # issue 17: `encode` replaced ldr.png, then failed on hdr.png; now both are written or neither
+    # `encode` replaced ldr.png, then failed on hdr.png; now both are written or neither
     np.save(tmp_path / "w2c.npy", np.concatenate([np.eye(3), [[0.0], [0.0], [-2.0]]], axis=1))
     out = tmp_path / "enc"
     out.mkdir()

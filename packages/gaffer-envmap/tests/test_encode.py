@@ -94,7 +94,7 @@ def test_compat_batch_equals_single_calls() -> None:
 
 
 def test_compat_one_map_at_a_time_equals_the_batched_primitives() -> None:
-    """`encode_lighting` runs compat one map at a time (faster per map, issue 18); the batched
+    """`encode_lighting` runs compat one map at a time (faster per map); the batched
     `rotate_neural_gaffer` + `encode_neural_gaffer` give the same bytes, spins included."""
     from gaffer_envmap.compat import (
         encode_neural_gaffer,

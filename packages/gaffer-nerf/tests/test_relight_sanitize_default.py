@@ -1,5 +1,5 @@
-"""`gaffer-nerf relight --sanitize` defaults to gaffer-envmap's own policy, "raise" (issue 17 item
-5): the 8 bundled HDRIs (7 with the tiny negatives of lossy compression) work, a NaN map is refused
+"""`gaffer-nerf relight --sanitize` defaults to gaffer-envmap's own policy, "raise": the 8
+bundled HDRIs (7 with the tiny negatives of lossy compression) work, a NaN map is refused
 in one line naming the flag (the default was "zero", which zeroed it silently)."""
 
 import logging
