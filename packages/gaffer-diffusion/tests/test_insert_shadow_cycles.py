@@ -1,5 +1,5 @@
 """`--shadow cycles` (issue 32, item 3): Cycles' shadow catcher under the insert's map, from a proxy
-inflated from the placed mask, rendered in a Blender worker process.
+built from the placed mask and the estimated normals, rendered in a Blender worker process.
 
 The proxy's geometry is checked without bpy; the renders (a few seconds each at a small size) are
 skipped where bpy is not installed."""
@@ -15,8 +15,10 @@ from gaffer_diffusion import insert as ins
 from gaffer_diffusion import insert_shadow_cycles as cyc
 from gaffer_diffusion import pretrained
 from gaffer_diffusion.cli import main
+from gaffer_diffusion.errors import ConfigError, MissingDependencyError
 from gaffer_diffusion.photo import Photo, RelitObject, envmap_backdrop, object_alpha, read_photo
 from gaffer_envmap.bundled import read_bundled_hdri
+from gaffer_envmap.environment_map import EnvironmentMap
 
 W, H = 240, 180
 OBJECT = pretrained.example_dataset_path() / "objects" / "procedural_002" / "lit" / "000_000.png"
@@ -86,16 +88,50 @@ def test_the_proxy_stands_on_the_ground_at_the_foot_and_covers_the_mask(scene) -
     assert 0.5 * width < np.ptp(depth) < 1.5 * width
 
 
-def test_a_depth_map_reshapes_the_front_of_the_proxy(scene) -> None:
+def test_a_relief_reshapes_the_front_and_the_lowest_row_meets_the_foot(scene) -> None:
     placed = scene["placed"]
     camera = ins.BackgroundCamera(width=W, height=H)
-    flat = np.zeros_like(placed.alpha)
-    round_ = cyc.proxy_scene(placed, camera).proxy_verts
-    ramp = np.broadcast_to(np.linspace(0, 1, placed.alpha.shape[1]), placed.alpha.shape)
-    tilted = cyc.proxy_scene(placed, camera, depth=ramp).proxy_verts
-    assert round_.shape == tilted.shape and not np.allclose(round_, tilted)
-    # a constant depth carries no shape: the round proxy is kept
-    assert np.allclose(cyc.proxy_scene(placed, camera, depth=flat).proxy_verts, round_)
+    _, forward = camera.ground_axes()
+    round_ = cyc.proxy_scene(placed, camera)
+    inside = (placed.alpha > 0.5).astype(np.float64)
+    ramp = np.broadcast_to(np.linspace(0, 20, placed.alpha.shape[1]), placed.alpha.shape) * inside
+    tilted = cyc.proxy_scene(placed, camera, ramp)
+    assert not np.allclose(round_.proxy_verts, tilted.proxy_verts)
+    for proxy in (round_, tilted):
+        v = proxy.proxy_verts
+        depth = (v - proxy.foot_world) @ forward  # along the ground, away from the camera
+        low = v[:, 2] <= v[:, 2].min() + 1e-9  # the lowest row's vertices
+        # its nearest point is at the foot's depth (the object's visible surface meets the ground
+        # there); nothing of the proxy stands nearer than the foot by more than the object is tall
+        assert math.isclose(depth[low].min(), 0.0, abs_tol=1e-6)
+        assert depth.min() > -placed.height_px * proxy.units_per_px
+    # a flat relief of h pixels: a slab 2h deep (the back mirrors the front)
+    slab = cyc.proxy_scene(placed, camera, 5.0 * inside)
+    depth = (slab.proxy_verts - slab.foot_world) @ forward
+    assert math.isclose(np.ptp(depth), 10.0 * slab.units_per_px, rel_tol=1e-6)
+
+
+def test_a_relief_off_the_grid_or_not_finite_is_refused(scene) -> None:
+    placed = scene["placed"]
+    camera = ins.BackgroundCamera(width=W, height=H)
+    with pytest.raises(ConfigError, match="placed object's grid"):
+        cyc.proxy_scene(placed, camera, np.zeros((3, 3)))
+    bad = np.zeros(placed.alpha.shape)
+    bad[0, 0] = np.nan
+    with pytest.raises(ConfigError, match="finite"):
+        cyc.proxy_scene(placed, camera, bad)
+
+
+def test_the_proxy_albedo_is_the_object_colour_over_the_mean_radiance() -> None:
+    alpha = np.ones((4, 4), np.float32)
+    grey = np.full((4, 4, 3), 0.5, np.float32)  # sRGB 0.5: linear 0.214
+    placed = ins.PlacedObject(
+        box=(0, 0, 4, 4), rgb=grey, alpha=alpha, foot_edge=(2.0, 4.0), height_px=4.0
+    )
+    env = EnvironmentMap(radiance_linear=np.full((16, 32, 3), 0.5, np.float32))
+    assert np.allclose(cyc.proxy_albedo(placed, env), 0.214 / 0.5, atol=2e-3)
+    dim = EnvironmentMap(radiance_linear=np.full((16, 32, 3), 0.01, np.float32))
+    assert cyc.proxy_albedo(placed, dim) == (cyc.MAX_ALBEDO,) * 3  # never brighter than real
 
 
 def test_without_bpy_cycles_is_refused_naming_the_fallback(monkeypatch) -> None:
@@ -150,6 +186,7 @@ def test_cli_cycles_writes_the_whole_picture_or_nothing(scene, tmp_path, monkeyp
     assert _run(scene, out, "--shadow", "cycles") == 0
     said = capsys.readouterr().out
     assert "shadow: cycles" in said and out.is_file()
+    assert "a proxy from the mask and the normals estimated by gaffer-normals" in said
     got = np.asarray(Image.open(out).convert("RGB"))
     bg = scene["background"].rgb_u8
     assert got.shape == bg.shape and (got[:40] == bg[:40]).all()  # far above: the bytes
@@ -161,3 +198,30 @@ def test_cli_cycles_writes_the_whole_picture_or_nothing(scene, tmp_path, monkeyp
     err = capsys.readouterr().err.strip().splitlines()[-1]  # after the weights' progress bars
     assert "Blender worker failed" in err and "`--shadow 2d`" in err and not failed.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o.png"]
+
+
+def test_estimated_proxy_without_estimator_weights_is_refused_before_sampling(monkeypatch) -> None:
+    """`proxy="estimated"` names the missing file and `proxy='mask'`; "auto" falls back, "mask"
+    does not look; other shadows need neither."""
+    monkeypatch.setattr(cyc, "bpy_available", lambda: True)
+    monkeypatch.setattr(ins, "_estimator_missing", lambda: "/x/gaffer_normals.json is missing")
+    config = ins.InsertConfig(shadow="cycles", proxy="estimated")
+    with pytest.raises(
+        MissingDependencyError, match=r"gaffer_normals\.json is missing.*proxy='mask'"
+    ):
+        ins.check_shadow(config)
+    auto = ins.check_shadow(ins.InsertConfig(shadow="cycles"))
+    assert auto == "/x/gaffer_normals.json is missing"
+    assert ins.check_shadow(ins.InsertConfig(shadow="cycles", proxy="mask")) is None
+    assert ins.check_shadow(ins.InsertConfig(shadow="2d", proxy="estimated")) is None
+    monkeypatch.setattr(cyc, "bpy_available", lambda: False)
+    with pytest.raises(MissingDependencyError, match=r"`--shadow 2d`"):
+        ins.check_shadow(ins.InsertConfig(shadow="cycles", proxy="mask"))
+
+
+@needs_bpy
+def test_cli_cycles_falls_back_to_the_mask_proxy_and_says_so(scene, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(ins, "_estimator_missing", lambda: "/x/gaffer_normals.json is missing")
+    assert _run(scene, tmp_path / "o.png", "--shadow", "cycles") == 0
+    said = capsys.readouterr().out
+    assert "a proxy inflated from the mask (no estimated normals: /x/gaffer_normals.json" in said

@@ -244,7 +244,7 @@ def insert_object(
                 from gaffer_diffusion.insert_relief import estimated_relief
 
                 relief = estimated_relief(prepared, relit_obj.box, extent, placement, (h, w))
-                proxy = f"a proxy from the mask and {relief.source}'s estimated normals"
+                proxy = f"a proxy from the mask and the normals estimated by {relief.source}"
             shadow = cast_shadow_cycles(
                 placed,
                 lighting,
