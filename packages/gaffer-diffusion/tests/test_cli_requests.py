@@ -1,4 +1,4 @@
-"""`relight`, `insert` and `evaluate` build one typed request from their arguments (`cli.from_args`):
+"""`relight`, `insert` and `evaluate` build one typed request from their arguments (`cli._from_args`):
 each input file is read once per call however many frames or outputs use it, the command bodies take
 the request, and each refusal is written once in the command line's source."""
 
@@ -14,8 +14,8 @@ from PIL import Image
 
 import gaffer_diffusion.cli as cli_package
 from gaffer_diffusion.cli import _parser, main
-from gaffer_diffusion.cli.from_args import evaluate_request, insert_request, relight_request
-from gaffer_diffusion.cli.requests import (
+from gaffer_diffusion.cli._from_args import evaluate_request, insert_request, relight_request
+from gaffer_diffusion.cli._requests import (
     EncodedLight,
     EnvmapLight,
     EvaluateFoldersRequest,

@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from gaffer_diffusion.cli import _parser, main
-from gaffer_diffusion.cli.from_args import _envmap_lighting, _lights
+from gaffer_diffusion.cli._from_args import _envmap_lighting, _lights
 from gaffer_envmap import bundled_hdris
 from gaffer_envmap.io import write_envmap
 

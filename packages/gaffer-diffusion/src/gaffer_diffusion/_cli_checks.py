@@ -1,4 +1,4 @@
-"""Cheap checks of command-line arguments, run before torch is imported or a model is loaded (issue 17).
+"""Cheap checks of command-line arguments, run before torch is imported or a model is loaded.
 
 Each check raises `ConfigError` (a value or a combination of flags is wrong) or `InputValueError` (a
 file is missing, empty or not what it should be) with one line that names the flag, the value and

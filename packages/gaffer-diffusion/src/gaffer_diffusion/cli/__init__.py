@@ -29,7 +29,7 @@
 Without `--checkpoint`, `relight` and `demo` use gaffer-tiny, the 128 px model shipped in the package.
 
 The code: `parser.py` builds the parser; `relight`, `evaluate` and `insert` turn the parsed arguments
-into a typed request once (`from_args.py` builds the `requests.py` dataclasses, performing every
+into a typed request once (`_from_args.py` builds the `_requests.py` dataclasses, performing every
 refusal and reading each input file once) and their modules (`relight.py`, `evaluate.py`,
 `insert.py`) run it; the other commands' modules (`demo.py`, `normals.py`, `authors.py` for
 prepare/check, `train.py` for train/export/init-random) check and run their own flags. `_common.py`,
@@ -47,20 +47,19 @@ import logging
 from collections.abc import Sequence
 
 # Only torch-free modules at import time: every argument is checked before torch, diffusers or a
-# model loads, so a refusal takes well under a second; the rest is imported where used.
+# model loads, so a refusal takes well under a second; the rest is imported where used. The `_from_args`
+# names are one part of a request at a time, re-exported for tests and tools that import them from
+# `gaffer_diffusion.cli` (the module this was); not in `__all__`, so the API docs show `main` only.
+from gaffer_diffusion.cli._from_args import _check_photo_flags as _check_photo_flags
+from gaffer_diffusion.cli._from_args import _compat as _compat
+from gaffer_diffusion.cli._from_args import _envmap_lighting as _envmap_lighting
+from gaffer_diffusion.cli._from_args import _latent_mode as _latent_mode
+from gaffer_diffusion.cli._from_args import _object_fraction as _object_fraction
+from gaffer_diffusion.cli._from_args import _runtime as _runtime
+from gaffer_diffusion.cli._from_args import _sampling as _sampling
 from gaffer_diffusion.cli.authors import _check, _prepare
 from gaffer_diffusion.cli.demo import _demo
 from gaffer_diffusion.cli.evaluate import _evaluate
-
-# One part of a request at a time (`from_args`), re-exported for tests and tools that import them
-# from `gaffer_diffusion.cli` (the module this was); not in `__all__`, so the API docs show `main`
-from gaffer_diffusion.cli.from_args import _check_photo_flags as _check_photo_flags
-from gaffer_diffusion.cli.from_args import _compat as _compat
-from gaffer_diffusion.cli.from_args import _envmap_lighting as _envmap_lighting
-from gaffer_diffusion.cli.from_args import _latent_mode as _latent_mode
-from gaffer_diffusion.cli.from_args import _object_fraction as _object_fraction
-from gaffer_diffusion.cli.from_args import _runtime as _runtime
-from gaffer_diffusion.cli.from_args import _sampling as _sampling
 from gaffer_diffusion.cli.insert import _insert
 from gaffer_diffusion.cli.normals import _normals, _train_normals
 from gaffer_diffusion.cli.parser import _parser

@@ -1,4 +1,4 @@
-"""Reading the lighting files of `relight` and `insert`, each once per call (`cli.from_args` calls
+"""Reading the lighting files of `relight` and `insert`, each once per call (`cli._from_args` calls
 these): the camera of `--w2c` and an environment map with `--sanitize`, each refused in one line
 naming the flag; and the early check of an `--envmap` value (a file, or a bundled HDRI's name)."""
 

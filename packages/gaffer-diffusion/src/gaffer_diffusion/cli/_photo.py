@@ -1,7 +1,7 @@
 """The photo in and out, for `relight`, `insert`, `prepare` and `normals`: reading a photo and its
-object mask (estimated by default when the photo has no usable alpha, as in the app), writing an estimated mask with the outputs, and turning
-a model result into the image written (pasted back at the photo's size, or the model's crop, over an
-optional environment backdrop)."""
+object mask (estimated by default when the photo has no usable alpha, as in the app), writing an
+estimated mask with the outputs, and turning a model result into the image written (pasted back at
+the photo's size, or the model's crop, over an optional environment backdrop)."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     import numpy as np
     import torch
 
-    from gaffer_diffusion.cli.requests import Light, OutputLook
+    from gaffer_diffusion.cli._requests import Light, OutputLook
     from gaffer_diffusion.photo import Photo, PreparedPhoto
 
 
@@ -137,7 +137,7 @@ def _backdrop(
 ) -> np.ndarray | None:
     """The target environment as the camera sees it (`--background envmap`), or None: the map the
     request read, not read again."""
-    from gaffer_diffusion.cli.requests import EnvmapLight
+    from gaffer_diffusion.cli._requests import EnvmapLight
 
     if look.background == "input" or not isinstance(light, EnvmapLight):
         return None

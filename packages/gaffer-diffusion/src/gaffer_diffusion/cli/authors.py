@@ -1,4 +1,4 @@
-"""`gaffer-diffusion prepare` and `check` (issue 15): the model-ready input the model sees, and
+"""`gaffer-diffusion prepare` and `check`: the model-ready input the model sees, and
 whether the authors' release (checkpoint-80000/ and a Zero-1-to-3 XL base) is complete."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
+from gaffer_diffusion.cli._from_args import _check_photo_flags
 from gaffer_diffusion.cli._photo import _mask_out, _photo_and_mask, write_with_outputs
-from gaffer_diffusion.cli.from_args import _check_photo_flags
 
 
 def _validate_prepare(args: argparse.Namespace) -> None:
@@ -17,7 +17,8 @@ def _validate_prepare(args: argparse.Namespace) -> None:
     checks.image_size("IMAGE", args.image)
     if isinstance(args.mask, Path):
         checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
-    # OUT_mask.png (the model's mask) and OUT.mask.png (an estimated one) go beside it (issue 36)
+    # OUT_mask.png (the model's mask) and OUT.mask.png (an estimated one) go beside it, checked
+    # before any work so that nothing already written is lost
     siblings = [_model_mask_out(args.out), _mask_out(args.out)]
     checks.writable_file("--out", args.out, siblings=siblings, suffixes=(".png",))  # PNGs only
     for written in (args.out, *siblings):  # none of what it writes may replace an input

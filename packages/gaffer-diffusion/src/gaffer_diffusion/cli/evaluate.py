@@ -1,15 +1,15 @@
 """`gaffer-diffusion evaluate`: relight a gaffer-data rendered dataset with a model and score it
 (`--dataset`), or score predicted images against ground truth matched by name (`--pred/--gt`).
-`from_args.evaluate_request` checks every flag (and reads the masks, the dataset's pairs and checks
+`_from_args.evaluate_request` checks every flag (and reads the masks, the dataset's pairs and checks
 their maps) first; the bodies here take that request."""
 
 from __future__ import annotations
 
 import argparse
 
-from gaffer_diffusion.cli.from_args import _check_envmaps as _check_envmaps
-from gaffer_diffusion.cli.from_args import _read_dir_images, evaluate_request
-from gaffer_diffusion.cli.requests import (
+from gaffer_diffusion.cli._from_args import _check_envmaps as _check_envmaps
+from gaffer_diffusion.cli._from_args import _read_dir_images, evaluate_request
+from gaffer_diffusion.cli._requests import (
     EvaluateDatasetRequest,
     EvaluateFoldersRequest,
     EvaluateRequest,
@@ -18,10 +18,10 @@ from gaffer_diffusion.cli.requests import (
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    return run_evaluate(evaluate_request(args))
+    return _run_evaluate(evaluate_request(args))
 
 
-def run_evaluate(request: EvaluateRequest) -> int:
+def _run_evaluate(request: EvaluateRequest) -> int:
     """Evaluate as `request` asks; returns the exit status."""
     if isinstance(request, EvaluateDatasetRequest):
         return _evaluate_dataset(request)

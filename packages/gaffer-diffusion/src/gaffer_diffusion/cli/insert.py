@@ -1,6 +1,6 @@
 """`gaffer-diffusion insert OBJECT --into BACKGROUND --out OUT.png`: the object photo relit under the
 background's lighting, placed, shadowed and composited (`gaffer_diffusion.insert`).
-`from_args.insert_request` checks every flag and file, and reads both photos, the map and the camera,
+`_from_args.insert_request` checks every flag and file, and reads both photos, the map and the camera,
 before torch is imported or weights load; the body here takes that `InsertRequest`."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ from __future__ import annotations
 import argparse
 
 from gaffer_diffusion.cli._common import _load_model, _save_png
+from gaffer_diffusion.cli._from_args import SUN_SIZE_DEG as SUN_SIZE_DEG
+from gaffer_diffusion.cli._from_args import _key_light as _key_light
+from gaffer_diffusion.cli._from_args import insert_request
 from gaffer_diffusion.cli._photo import write_with_outputs
-from gaffer_diffusion.cli.from_args import SUN_SIZE_DEG as SUN_SIZE_DEG
-from gaffer_diffusion.cli.from_args import _key_light as _key_light
-from gaffer_diffusion.cli.from_args import insert_request
-from gaffer_diffusion.cli.requests import InsertRequest
+from gaffer_diffusion.cli._requests import InsertRequest
 
 
 def parse_xy(text: str) -> tuple[float, float]:
@@ -43,10 +43,10 @@ def parse_key_light(text: str) -> tuple[float, ...]:
 
 
 def _insert(args: argparse.Namespace) -> int:
-    return run_insert(insert_request(args))
+    return _run_insert(insert_request(args))
 
 
-def run_insert(request: InsertRequest) -> int:
+def _run_insert(request: InsertRequest) -> int:
     """Insert as `request` asks; returns the exit status."""
     import time
 

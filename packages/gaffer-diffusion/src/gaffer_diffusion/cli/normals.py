@@ -1,4 +1,4 @@
-"""`gaffer-diffusion normals` and `train-normals` (issue 31): the learned normal estimator alone, and
+"""`gaffer-diffusion normals` and `train-normals`: the learned normal estimator alone, and
 training it on gaffer-data renders (extra [train])."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ from pathlib import Path
 
 from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _save_png
+from gaffer_diffusion.cli._from_args import _check_photo_flags
 from gaffer_diffusion.cli._photo import _mask_out, _photo_and_mask, write_with_outputs
-from gaffer_diffusion.cli.from_args import _check_photo_flags
 from gaffer_diffusion.errors import ConfigError
 
 
@@ -19,7 +19,7 @@ def _validate_normals(args: argparse.Namespace) -> None:
         checks.need_file("--mask", args.mask, "the object mask (white = object), or 'auto'")
     if args.estimator is not None:
         checks.need_dir("--estimator", args.estimator, "a folder written by `train-normals`")
-    # an estimated mask goes beside it, as OUT.mask.png (issue 36)
+    # an estimated mask goes beside it, as OUT.mask.png: checked before any work
     siblings = [] if isinstance(args.mask, Path) else [_mask_out(args.out)]
     checks.writable_file("--out", args.out, siblings=siblings)
     for written in (args.out, *siblings):  # none of what it writes may replace an input
@@ -82,7 +82,7 @@ equal): the file that marks an estimator folder."""
 
 def _check_replaceable_estimator(args: argparse.Namespace) -> None:
     """The new estimator replaces the whole `--out` folder (`atomic_dir`): refuse one that holds
-    anything but an earlier estimator, and one that is or holds `--data` / `--val` (issue 36:
+    anything but an earlier estimator, and one that is or holds `--data` / `--val` (so that
     nothing already written is lost)."""
     out = args.out.absolute().resolve()
     for flag, src in (("--data", args.data), ("--val", args.val)):

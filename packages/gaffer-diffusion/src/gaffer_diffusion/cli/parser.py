@@ -1,6 +1,6 @@
 """The argparse parser of `gaffer-diffusion`: every subcommand, flag and help text, and the small
 argument types the flags use (`--mask`, `--envmap`, `--input-lighting`). No torch: building the parser
-and checking what it parsed come before any model loads (issue 17)."""
+and checking what it parsed come before any model loads (a refusal takes a fraction of a second)."""
 
 from __future__ import annotations
 
@@ -388,7 +388,7 @@ _IMAGE_HELP = (
     "object photo: its alpha is the object mask; without one (RGB, JPEG, or an all-opaque alpha) "
     "the mask is estimated (GrabCut, as --mask auto) and written beside the output as OUT.mask.png"
 )
-"""The photo argument of `relight`, `normals` and `prepare` (issue 36)."""
+"""The photo argument of `relight`, `normals` and `prepare` (an estimated mask is one of the outputs)."""
 
 _MASK_HELP = (
     "object mask (white = object), used instead of the photo's alpha; 'auto': a classical GrabCut "
@@ -404,7 +404,7 @@ def _mask_arg(text: str) -> Path | str:
 
 
 def _envmap_path(value: str) -> Path:
-    """`--envmap`: a file, or the name of an HDRI bundled with gaffer-envmap (issue 17)."""
+    """`--envmap`: a file, or the name of an HDRI bundled with gaffer-envmap (`city`, `studio`, ...)."""
     path = Path(value)
     if path.exists() or path.suffix:
         return path
@@ -414,7 +414,7 @@ def _envmap_path(value: str) -> Path:
 
 
 def _add_normals_commands(sub: Any) -> None:
-    """`normals` and `train-normals` (issue 31): the learned normal estimator alone, and its training."""
+    """`normals` and `train-normals`: the learned normal estimator alone, and its training."""
     nm = sub.add_parser(
         "normals",
         help="estimate camera-frame normals of a photo's object (the geometry gaffer-tiny's hints use)",
@@ -453,7 +453,7 @@ def _add_normals_commands(sub: Any) -> None:
 
 
 def _add_authors_commands(sub: Any) -> None:
-    """`prepare` and `check` (issue 15): what the model sees, and whether the authors' files are complete."""
+    """`prepare` and `check`: what the model sees, and whether the authors' files are complete."""
     pr = sub.add_parser(
         "prepare", help="write the model-ready square input (on white) and its mask, as PNGs"
     )
@@ -481,7 +481,7 @@ def _add_authors_commands(sub: Any) -> None:
 
 
 def _add_insert_command(sub: Any) -> None:
-    """`insert` (issue 32): an object photo relit and placed into a background photo, with a shadow."""
+    """`insert`: an object photo relit and placed into a background photo, with a shadow."""
     n = sub.add_parser(
         "insert",
         help="relight an object photo under a background's lighting and paste it in, with a shadow",

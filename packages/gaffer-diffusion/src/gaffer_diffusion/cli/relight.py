@@ -1,5 +1,5 @@
 """`gaffer-diffusion relight`: one image (optionally a turntable), or every image x every map of
-folders, batched. `from_args.relight_request` checks every flag and reads every input first, before
+folders, batched. `_from_args.relight_request` checks every flag and reads every input first, before
 torch is imported or weights load; the bodies here take that `RelightRequest`."""
 
 from __future__ import annotations
@@ -11,9 +11,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from gaffer_diffusion.cli._common import _load_model, _progress, _save_png
+from gaffer_diffusion.cli._from_args import relight_request
 from gaffer_diffusion.cli._photo import PhotoMask, _finish, write_with_outputs
-from gaffer_diffusion.cli.from_args import relight_request
-from gaffer_diffusion.cli.requests import OutputLook, RelightRequest
+from gaffer_diffusion.cli._requests import OutputLook, RelightRequest
 from gaffer_diffusion.errors import GafferDiffusionError
 
 if TYPE_CHECKING:
@@ -34,7 +34,7 @@ def _background_note(look: OutputLook, full_frame: bool) -> str:
 
 
 def _relight(args: argparse.Namespace) -> int:
-    return run_relight(relight_request(args))
+    return _run_relight(relight_request(args))
 
 
 def _pipeline(request: RelightRequest) -> RelightPipeline:
@@ -47,7 +47,7 @@ def _pipeline(request: RelightRequest) -> RelightPipeline:
     )
 
 
-def run_relight(request: RelightRequest) -> int:
+def _run_relight(request: RelightRequest) -> int:
     """Relight as `request` asks; returns the exit status (1: some images of a folder failed)."""
     if request.grid:
         return _relight_grid(request)

@@ -1,4 +1,4 @@
-"""The requests of `relight`, `evaluate` and `insert` (`cli.requests`), each built once from the parsed
+"""The requests of `relight`, `evaluate` and `insert` (`cli._requests`), each built once from the parsed
 arguments by one function (`relight_request`, `evaluate_request`, `insert_request`) that performs
 every refusal, before any weights load; nothing below these functions reads the `argparse.Namespace`.
 
@@ -23,7 +23,7 @@ from gaffer_diffusion.cli._common import _ENVMAP_SUFFIXES, _IMAGE_SUFFIXES, _fil
 from gaffer_diffusion.cli._flag_checks import _check_checkpoint_args, _check_device_cheaply
 from gaffer_diffusion.cli._lighting import _check_envmap_arg, _read_envmap, _read_w2c
 from gaffer_diffusion.cli._photo import PhotoMask, _mask_out, _photo_and_mask
-from gaffer_diffusion.cli.requests import (
+from gaffer_diffusion.cli._requests import (
     EncodedLight,
     EnvmapLight,
     EvaluateDatasetRequest,

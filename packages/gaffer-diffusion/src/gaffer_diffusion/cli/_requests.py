@@ -1,5 +1,5 @@
 """The typed requests of `relight`, `evaluate` and `insert`: what a command is asked to do, built once
-from its parsed arguments by `cli.from_args` (which performs every refusal), so the command bodies
+from its parsed arguments by `cli._from_args` (which performs every refusal), so the command bodies
 read no `argparse.Namespace`.
 
 Each file a request names is read there, once: the photo and its mask (`PhotoMask`), the environment
