@@ -214,9 +214,11 @@ def test_a_unit_wrapped_onto_the_next_line_still_counts(
 ) -> None:
     # "about 1.5\nminutes" once matched a load average of 1.53 (a bare decimal): with its unit it is
     # a time, and no time leaf of the file is 90 s
-    text = f"<!-- numbers-from: {R}/insert.json -->\n# x\n\nIt takes about 1.5\nminutes to run.\n"
+    src = tmp_path / "load.json"  # its own source: a measured file's values change when re-run
+    src.write_text('{"load_average": 1.53, "seconds": 12.0}')
+    text = f"<!-- numbers-from: {src} -->\n# x\n\nIt takes about 1.5\nminutes to run.\n"
     failures = checker.check_page(_page(tmp_path, text))
     assert len(failures) == 1 and ":4: 1.5 minutes: matches no value" in failures[0]
     # across a paragraph break the next line is not the number's
-    apart = f"<!-- numbers-from: {R}/insert.json -->\n# x\n\nA load of 1.5\n\nminutes later.\n"
+    apart = f"<!-- numbers-from: {src} -->\n# x\n\nA load of 1.5\n\nminutes later.\n"
     assert checker.check_page(_page(tmp_path, apart)) == []
