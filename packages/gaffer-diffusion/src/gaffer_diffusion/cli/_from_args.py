@@ -22,7 +22,7 @@ from gaffer_diffusion import _cli_checks as checks
 from gaffer_diffusion.cli._common import _ENVMAP_SUFFIXES, _IMAGE_SUFFIXES, _files
 from gaffer_diffusion.cli._flag_checks import _check_checkpoint_args, _check_device_cheaply
 from gaffer_diffusion.cli._lighting import _check_envmap_arg, _read_envmap, _read_w2c
-from gaffer_diffusion.cli._photo import PhotoMask, _mask_out, _photo_and_mask
+from gaffer_diffusion.cli._photo import _mask_out, _photo_and_mask
 from gaffer_diffusion.cli._requests import (
     EncodedLight,
     EnvmapLight,
@@ -33,6 +33,7 @@ from gaffer_diffusion.cli._requests import (
     Light,
     ModelChoice,
     OutputLook,
+    PhotoMask,
     RelightRequest,
     Reports,
     RuntimeChoice,

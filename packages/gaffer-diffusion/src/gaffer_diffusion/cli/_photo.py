@@ -7,49 +7,22 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gaffer_diffusion.cli._common import _save_png
+from gaffer_diffusion.cli._requests import EnvmapLight, Light, OutputLook, PhotoMask
 from gaffer_diffusion.errors import ConfigError, InputValueError, MissingDependencyError
 
 if TYPE_CHECKING:
     import numpy as np
     import torch
 
-    from gaffer_diffusion.cli._requests import Light, OutputLook
-    from gaffer_diffusion.photo import Photo, PreparedPhoto
+    from gaffer_diffusion.photo import PreparedPhoto
 
 
 def _mask_out(out: Path) -> Path:
     """Where an automatic mask is written: beside the output, `OUT.mask.png`."""
     return out.with_name(f"{out.with_suffix('').name}.mask.png")
-
-
-@dataclass(frozen=True, kw_only=True)
-class PhotoMask:
-    """A photo read for a command, with its object mask.
-
-    Attributes:
-        photo: the photo.
-        alpha: `[H, W]` float32 object mask in [0, 1].
-        note: what the report says about an estimated mask ("" for a given one or the alpha).
-        estimated: `[H, W]` uint8 estimated mask to write at `mask_out` together with the outputs
-            (complete or absent with them: `write_with_outputs`), or None.
-        mask_out: where an estimated mask goes (`OUT.mask.png`).
-    """
-
-    photo: Photo
-    alpha: np.ndarray
-    note: str = ""
-    estimated: np.ndarray | None = None
-    mask_out: Path | None = None
-
-    def write_mask_into(self, stage: Path) -> None:
-        """Write the estimated mask (if any) into `stage` under its final name."""
-        if self.estimated is not None and self.mask_out is not None:
-            _save_png(stage / self.mask_out.name, self.estimated)
 
 
 @contextlib.contextmanager
@@ -137,8 +110,6 @@ def _backdrop(
 ) -> np.ndarray | None:
     """The target environment as the camera sees it (`--background envmap`), or None: the map the
     request read, not read again."""
-    from gaffer_diffusion.cli._requests import EnvmapLight
-
     if look.background == "input" or not isinstance(light, EnvmapLight):
         return None
     from gaffer_diffusion.photo import envmap_backdrop

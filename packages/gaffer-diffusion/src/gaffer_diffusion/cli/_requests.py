@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from gaffer_diffusion._choices import Background, DetailMode, OutputSize, ShadowMode
-from gaffer_diffusion.cli._common import _device_name
-from gaffer_diffusion.cli._photo import PhotoMask
+from gaffer_diffusion.cli._common import _device_name, _save_png
 from gaffer_diffusion.suggested import DefaultSampling, LatentModeName
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from gaffer_diffusion.conditioning import LightingMaps
     from gaffer_diffusion.evaluation.records import EvalPair
     from gaffer_diffusion.insert_geometry import InsertLighting, Placement
@@ -38,10 +39,36 @@ __all__ = [
     "Light",
     "ModelChoice",
     "OutputLook",
+    "PhotoMask",
     "RelightRequest",
     "Reports",
     "RuntimeChoice",
 ]
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhotoMask:
+    """A photo read for a command, with its object mask.
+
+    Attributes:
+        photo: the photo.
+        alpha: `[H, W]` float32 object mask in [0, 1].
+        note: what the report says about an estimated mask ("" for a given one or the alpha).
+        estimated: `[H, W]` uint8 estimated mask to write at `mask_out` together with the outputs
+            (complete or absent with them: `write_with_outputs`), or None.
+        mask_out: where an estimated mask goes (`OUT.mask.png`).
+    """
+
+    photo: Photo
+    alpha: np.ndarray
+    note: str = ""
+    estimated: np.ndarray | None = None
+    mask_out: Path | None = None
+
+    def write_mask_into(self, stage: Path) -> None:
+        """Write the estimated mask (if any) into `stage` under its final name."""
+        if self.estimated is not None and self.mask_out is not None:
+            _save_png(stage / self.mask_out.name, self.estimated)
 
 
 @dataclass(frozen=True, kw_only=True)

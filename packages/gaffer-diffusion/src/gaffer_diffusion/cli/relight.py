@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 
 from gaffer_diffusion.cli._common import _load_model, _progress, _save_png
 from gaffer_diffusion.cli._from_args import relight_request
-from gaffer_diffusion.cli._photo import PhotoMask, _finish, write_with_outputs
-from gaffer_diffusion.cli._requests import OutputLook, RelightRequest
+from gaffer_diffusion.cli._photo import _finish, write_with_outputs
+from gaffer_diffusion.cli._requests import OutputLook, PhotoMask, RelightRequest
 from gaffer_diffusion.errors import GafferDiffusionError
 
 if TYPE_CHECKING:
