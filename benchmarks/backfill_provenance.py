@@ -1,4 +1,4 @@
-"""Give every committed result file a `provenance` block: what it measured and where (issue 34 item 1).
+"""Give every committed result file a `provenance` block: what it measured and where.
 
 New runs record this themselves (`_common.machine`, `_common.model_provenance`,
 `_common.data_provenance`). Files written before that lack some of it; this script adds what git can

@@ -1,6 +1,6 @@
 """Detail transfer vs bicubic upsampling: gaffer-tiny's 128 px result brought back to 512 px renders.
 
-Issue 16: `relight` returns the photo at its own size. Held-out objects (six gaffer-data procedural
+`relight` returns the photo at its own size. Held-out objects (six gaffer-data procedural
 recipe objects of seed 7, and pymeshlab's cow, which gaffer-tiny's model card keeps for its test split)
 are rendered by gaffer-data at 512 px under its test-split HDRIs `courtyard` and `sunset` (3 draws per
 view: yaw and mirroring vary). Each (input lighting 0 -> target lighting k) pair runs through what `relight` does: the

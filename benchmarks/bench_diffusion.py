@@ -12,7 +12,7 @@ Two parts, each writing JSON + PNG (see `_common.write_results`):
      in the same process (fp32 weights under fp16 autocast, 50 DDIM steps, CFG 3, batch 4, posterior
      samples for the conditioning latents; attention through PyTorch SDPA, which stands in for their
      xformers kernel, so the comparison does not credit us for the attention kernel). Throughput is
-     images per second at 50 DDIM steps with CFG 3 for both; targets from issue 4: >= 5x theirs, and
+     images per second at 50 DDIM steps with CFG 3 for both; targets: >= 5x theirs, and
      < 50 ms per image at a large batch.
 2. `diffusion_steps`: DDIM / DPM-Solver++ / UniPC at 5 ... 50 steps, seconds per image vs accuracy
    against the 50-step DDIM output of the same seed and conditions (PSNR, and the perceptual distance:

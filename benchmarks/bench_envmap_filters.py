@@ -6,7 +6,7 @@ uniformly random direction, so a random sub-pixel position; black sky) into a 25
 
 - `bilinear`: `rotate_to_camera(filter="bilinear")`;
 - `conservative ss1, ss2`: `rotate_to_camera(filter="conservative", supersample=s)`; ss2 is the
-  power-exact default since issue 18 (torch path, the fused kernel serves `encode_lighting` only);
+  power-exact default (torch path, the fused kernel serves `encode_lighting` only);
 - `area ss1..ss4`: `rotate_to_camera(filter="area", supersample=s)` (with this source and output size the
   pre-downsample has nothing to do, so ss1 may coincide with bilinear; the JSON records whether it does);
 - `compat linear`: the authors' geometry on linear radiance: `compat.rotate_neural_gaffer` at source

@@ -13,7 +13,7 @@ Every runner, ours and theirs, takes the next map and pose on each call (8 bundl
 repeating one input would keep it in cache and flatter batch 1.
 (c) "default": `encode_lighting(..., compat="default")` (the power-exact "conservative" filter, fused
     numba kernel on CPU), batches of 1, 32, 256 and supersample 1 and 2; and the "area" filter (the
-    default before issue 18, torch) at batch 1.
+    the earlier default, torch) at batch 1.
 
 torch uses every usable core (`--threads` to change). Results: JSON + PNG under benchmarks/results/
 (see benchmarks/README.md). With CUDA present, the default and compat pipelines are also timed on the
@@ -43,7 +43,7 @@ SRC_HEIGHT = 256  # the authors pre-resized training maps to 512x256 (reference 
 TARGET_GPU_MAPS_PER_S = 100_000.0
 REGRESSION_GUARD = {"default_b1_ss2": 1.93, "default_best": 3.32, "compat_worst": 1.78}
 """The ratios to theirs of the committed run of 2026-12-04 (results/envmap_preprocess.json, 2-core
-CPU), kept as a floor: the goal of 30x theirs is retired (issue 35: the power-exact default needs 8
+CPU), kept as a floor: the goal of 30x theirs is retired (the power-exact default needs 8
 sub-samples per pixel, and encoding is not the bottleneck of any path, see `training_consumption`)."""
 GUARD_TOLERANCE = 0.75
 """A run is below the guard when a ratio falls under 0.75x its floor (shared machines drift)."""
@@ -63,7 +63,7 @@ class Scenario:
     pipeline: Pipeline
     batch_size: int = 1
     supersample: int = 1
-    # The default mode's rotation filter ("area": the default before issue 18).
+    # The default mode's rotation filter ("area": the earlier default).
     filter: str = "conservative"
     device: str = "cpu"
     threads: int = 0  # torch intra-op threads; 0 = the run's setting (all usable cores by default)

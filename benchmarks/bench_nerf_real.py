@@ -1,6 +1,6 @@
 """gaffer-nerf on real renders with the shipped gaffer-tiny: the paper's 3D table and ablations at CPU scale.
 
-Issue 20 item 2. Three procedural objects gaffer-tiny never saw (`gaffer-data recipe --procedural 3
+Three procedural objects gaffer-tiny never saw (`gaffer-data recipe --procedural 3
 --seed 41`; gaffer-tiny's splits are seeds 21-24) are rendered by gaffer-data (`render-multiview`,
 Blender Cycles, 64 px, 32 samples + denoiser, 20 train + 5 test views on the default sphere layout)
 under three lightings each: `city` (one of gaffer-tiny's four training HDRIs) is the INPUT lighting
@@ -46,7 +46,7 @@ LPIPS) on the object's crop, the mask-aligned PSNR (per-channel scale fitted in 
 paper's metrics), and full-frame PSNR; means over the test views, then over the (object, target)
 pairs. Seconds per phase: fit (per object), weight cache, encoding, relit views, Stage 1, Stage 2.
 
-Multi-view consistency (issue 20 item 3): every field is also rendered along a closed 16-frame orbit
+Multi-view consistency: every field is also rendered along a closed 16-frame orbit
 (one ring at 30 degrees elevation, a second gaffer-data render of the same objects under the same
 lighting draws, `orbit_renders`), and `gaffer_nerf.flicker.temporal_flicker` scores the sequence
 against the Cycles orbit under the target lighting: the mean frame-to-frame change the ground truth
@@ -188,7 +188,7 @@ VALIDATION_B = Split(
     "nerf_real_val_b_data",
 )
 """Three more unseen objects (`--seed 43`) under the input lighting only: `bench_nerf_sizing.py
---real validation-b`, more objects to choose a sizing rule on (issue 20 item 4)."""
+--real validation-b`, more objects to choose a sizing rule on."""
 SPLITS = {s.name: s for s in (TEST, VALIDATION, VALIDATION_B)}
 
 
@@ -263,7 +263,7 @@ def renders(need: int = NUM_OBJECTS, split: Split = TEST) -> Path:
 
 
 ORBIT_VIEWS = 16
-"""Frames of the closed test orbit the flicker metric runs along (issue 20 item 3)."""
+"""Frames of the closed test orbit the flicker metric runs along."""
 ORBIT_ELEVATION_DEG = 30.0
 
 
@@ -592,7 +592,7 @@ def run(quick: bool, seed: int) -> dict[str, Any]:
             "target_lightings_are": "gaffer-tiny's test-split HDRIs (model card)",
             "model": loaded.name,
             "model_source": str(loaded.source),
-            # which weights (issue 34): release, shipped or not, sha256 of every weights file
+            # which weights: release, shipped or not, sha256 of every weights file
             "model_provenance": common.model_provenance(Path(str(loaded.source)))
             if Path(str(loaded.source)).joinpath("gaffer_model.json").is_file()
             else None,

@@ -1,6 +1,6 @@
 """gaffer-nerf grid sizing: the footprint + iteration-budget rule against fixed grids, at equal time.
 
-Issue 20 item 4. The scene is `bench_nerf.py`'s (the analytic sphere, 64 px, 8 train views, 3 test
+The scene is `bench_nerf.py`'s (the analytic sphere, 64 px, 8 train views, 3 test
 views on an offset orbit, input lighting `scene_envmap(0)`); early stopping scores 3 further held-out
 views (a third orbit, not the test views). Every fit is `fit_preset("tiny")` (300 iterations of 1024
 rays) with early stopping (`EarlyStoppingConfig(eval_every=50, patience=2, min_iterations=150)`), all

@@ -1,4 +1,4 @@
-"""Every committed result file names what it measured (issue 34 item 1).
+"""Every committed result file names what it measured.
 
 Commit and machine, and for a result of a trained model its release and the sha256 of its weights; a
 result of an older model says so (`shipped: false`) and never carries the shipped release's name with

@@ -1,4 +1,4 @@
-"""Every measured number in the prose comes from a committed result file (issue 34 item 3).
+"""Every measured number in the prose comes from a committed result file.
 
 `docs/_scripts/check_numbers.py` reads README.md, docs/, benchmarks/README.md, the package and
 integration READMEs and the model cards; a number with no declared source, or one that matches no value

@@ -1,4 +1,4 @@
-"""The whole chain through the four command lines, on disk artifacts only (issue 14 item 6).
+"""The whole chain through the four command lines, on disk artifacts only.
 
 gaffer-data render (Cycles, 32 px) -> gaffer-diffusion train (a few steps of the `tiny` preset on that
 render) -> export -> relight one rendered view with the trained model -> gaffer-data render-multiview ->

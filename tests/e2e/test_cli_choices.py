@@ -1,4 +1,4 @@
-"""Every `--compat` flag of every CLI offers gaffer-envmap's one list of modes (issue 14 item 4)."""
+"""Every `--compat` flag of every CLI offers gaffer-envmap's one list of modes."""
 
 import argparse
 

@@ -1,4 +1,4 @@
-"""`--debug`, documented exit codes and one `--sanitize` on every gaffer CLI (issue 17 items 1 and 5)."""
+"""`--debug`, documented exit codes and one `--sanitize` on every gaffer CLI."""
 
 import argparse
 import importlib
@@ -99,4 +99,4 @@ def test_every_command_that_reads_env_maps_takes_the_shared_sanitize():
         assert tuple(action.choices or ()) == SANITIZE_POLICIES, where
         assert "'strict' refuses any" in (action.help or ""), where  # one help text
         assert f"'{action.default}' (default)" in (action.help or ""), where
-        assert action.default == "raise", where  # the library's default everywhere (issue 17)
+        assert action.default == "raise", where  # the library's default everywhere

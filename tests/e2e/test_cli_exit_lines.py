@@ -1,4 +1,4 @@
-"""Every gaffer CLI ends Ctrl-C and unwritable outputs with one stderr line, never a traceback (issue 17)."""
+"""Every gaffer CLI ends Ctrl-C and unwritable outputs with one stderr line, never a traceback."""
 
 import importlib
 

@@ -1,4 +1,4 @@
-"""Every argument of every gaffer CLI has help text (issue 14, item 8)."""
+"""Every argument of every gaffer CLI has help text."""
 
 import argparse
 

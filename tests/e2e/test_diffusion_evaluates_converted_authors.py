@@ -1,7 +1,7 @@
 """Evaluation on the authors' released layout after `gaffer-data convert-authors`: the pairs carry
 their pre-encoded maps, used as they are. A cross-package test (gaffer-data's converter feeds
 gaffer-diffusion's evaluation): moved here unchanged, with its `_authors_release` helper, from
-gaffer-diffusion's tests/test_evaluation.py (issue 14 item 6)."""
+gaffer-diffusion's tests/test_evaluation.py."""
 
 from pathlib import Path
 

@@ -1,9 +1,9 @@
-"""Training on the authors' released layout after `gaffer-data convert-authors` (issue 5): items use
+"""Training on the authors' released layout after `gaffer-data convert-authors`: items use
 their pre-encoded LDR/HDR maps as they are (resized like evaluation does), batches mix them with
 gaffer-data renders, and the tiny preset trains, validates and resumes on a converted split. CPU.
 
 A cross-package test (gaffer-data's converter feeds gaffer-diffusion's training): moved here unchanged
-from gaffer-diffusion's tests/test_training_authors.py (issue 14 item 6)."""
+from gaffer-diffusion's tests/test_training_authors.py."""
 
 from pathlib import Path
 from typing import Any

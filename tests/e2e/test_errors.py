@@ -1,8 +1,8 @@
-"""One error vocabulary across the four packages (issue 14, item 4)."""
+"""One error vocabulary across the four packages."""
 
 
 def test_every_package_shape_error_is_the_one_shape_error() -> None:
-    # issue 14: ShapeError is defined once (gaffer_envmap.errors) and each package subclasses it
+    # ShapeError is defined once (gaffer_envmap.errors) and each package subclasses it
     import importlib
 
     from gaffer_envmap.errors import GafferError, ShapeError

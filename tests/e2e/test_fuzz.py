@@ -1,4 +1,4 @@
-"""Table-driven bad-input suite for the four command lines (issue 17, item 6).
+"""Table-driven bad-input suite for the four command lines.
 
 Every row is one invocation of a subcommand of `gaffer-envmap`, `gaffer-data`, `gaffer-diffusion` or
 `gaffer-nerf` with a bad or edge-case input: missing, empty, truncated or garbage files, NaN, zero,
@@ -95,7 +95,7 @@ CASES: list[Case] = [
     _c(E, "procedural-count-negative", "procedural --out-dir proc --count -1"),
     _c(E, "procedural-height-0", "procedural --out-dir proc --height 0"),
     _c(E, "procedural-into-file", "procedural --out-dir {F}/afile --count 1"),
-    # issue 36: a file where a folder is expected and the reverse, inside an output folder too, a
+    # a file where a folder is expected and the reverse, inside an output folder too, a
     # format without its writer or suffix, an output that is an input: refused before any work
     _c(E, "rotate-dst-folder", f"rotate {CITY} {{F}}/emptydir --w2c {{F}}/w2c.npy", words="`dst`"),
     _c(E, "rotate-dst-no-suffix", f"rotate {CITY} dst --w2c {{F}}/w2c.npy", words="`dst`"),
@@ -115,7 +115,7 @@ CASES: list[Case] = [
        words="`dst`"),
     _c(E, "encode-out-dir-is-src", "encode {F}/ldrmap/ldr.png --w2c {F}/w2c.npy --out-dir {F}/ldrmap",
        words="`src`"),
-    # sky (issue 32 item 1): bad angles, a time without offset, an unknown model or word, a folder
+    # sky: bad angles, a time without offset, an unknown model or word, a folder
     _c(E, "sky-sun-elevation-120", "sky --sun-elevation 120 --sun-azimuth 0 --out s.exr",
        words="--sun-elevation"),
     _c(E, "sky-time-no-offset", "sky --at 48.86,2.29 --time 2026-06-21T12:00 --out s.exr",
@@ -124,7 +124,7 @@ CASES: list[Case] = [
     _c(E, "sky-strict-unknown-word", "sky --text noon,fluffy --strict --out s.exr",
        words="'fluffy'"),
     _c(E, "sky-out-folder", "sky --text noon --out {F}/emptydir", words="`--out`"),
-    # lighting sources (issue 32 item 2): plugins of the entry-point group gaffer.envmap_sources
+    # lighting sources: plugins of the entry-point group gaffer.envmap_sources
     _c(E, "sky-source-unknown", "sky --source nope --text noon --out s.exr",
        words="installed: sky"),
     _c(E, "sky-source-no-text", "sky --source sky --out s.exr", words="`--text PHRASE`"),
@@ -243,7 +243,7 @@ CASES: list[Case] = [
     # a photo without a usable alpha: its mask is estimated (the app's GrabCut), not refused
     _c(G, "prepare-rgb-photo", "prepare {F}/photo.jpg --out p.png --size 32", expect="handle"),
     _c(G, "prepare-opaque-rgba", "prepare {F}/opaque.png --out p.png --size 32", expect="handle"),
-    # insert (issue 32): the object good.png (30x40) into the background photo.jpg (80x60)
+    # insert: the object good.png (30x40) into the background photo.jpg (80x60)
     _c(G, "insert-mask-size", f"insert {INS} --mask {{F}}/photo.jpg --out o.png", words="`--mask`"),
     _c(G, "insert-at-outside", f"insert {INS} --at 80,10 --out o.png", words="`--at`"),
     _c(G, "insert-height-too-tall", f"insert {INS} --at 40,50 --height 60 --out o.png",
@@ -381,7 +381,7 @@ def _write_files(folder: Path) -> None:
 
 
 def _write_output_clashes(folder: Path) -> None:
-    """Issue 36: `slots/` holds a folder in the place of each file the commands write into an
+    """`slots/` holds a folder in the place of each file the commands write into an
     output folder, and a file in the place of each sub-folder; a real field header and a multi-view
     folder whose checks pass (so the output is what is refused); photos without a usable alpha."""
     import json
@@ -551,7 +551,7 @@ def fuzz(tmp_path_factory, request):
     with capture.global_and_fixture_disabled() if capture is not None else contextlib.nullcontext():
         if reporter is not None:
             reporter.ensure_newline()
-            reporter.write_sep("-", "issue 17 bad-input suite")
+            reporter.write_sep("-", "bad-input suite")
             reporter.write_line(text)
             for b in bad:
                 reporter.write_line(b[:300])

@@ -1,4 +1,4 @@
-"""kill -9 in the middle of a multi-file output leaves the earlier run's files as they were (issue 17).
+"""kill -9 in the middle of a multi-file output leaves the earlier run's files as they were.
 
 The demo builds its whole folder in a hidden `.OUT.partial-*` sibling and renames it into place at the
 end (`gaffer_diffusion._atomic_dir`); `gaffer-envmap procedural` / `augment` and `gaffer-data recipe`

@@ -1,5 +1,4 @@
-"""gaffer-tiny's model card and the README headline carry numbers generated from committed result files
-(issue 34 items 2, 3 and 6).
+"""gaffer-tiny's model card and the README headline carry numbers generated from committed result files.
 
 `benchmarks/gaffer_tiny_card.py` rebuilds each table of MODEL_CARD.md from the per-pair evaluation
 files in `benchmarks/results/reshade/`; a number edited by hand in the card, or a result file replaced
@@ -68,8 +67,7 @@ def test_readme_headline_matches_the_result_files() -> None:
 
 
 def test_readme_module_map_names_files_that_exist() -> None:
-    """Each package's "where its work starts" entries in README.md point at real modules (issue 34
-    item 6): a renamed or moved module fails here instead of leaving a dead pointer."""
+    """Each package's "where its work starts" entries in README.md point at real modules: a renamed or moved module fails here instead of leaving a dead pointer."""
     import re
 
     text = (ROOT / "README.md").read_text()

@@ -1,5 +1,5 @@
-"""gaffer-data's own multi-view writer output (`nerf_transforms`) reads back in gaffer-nerf (issue 14
-item 6: a cross-package test, moved here unchanged from gaffer-nerf's tests/test_data.py)."""
+"""gaffer-data's own multi-view writer output (`nerf_transforms`) reads back in gaffer-nerf (a
+cross-package test, moved here unchanged from gaffer-nerf's tests/test_data.py)."""
 
 import json
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""Issue 35: `--dtype auto` (bf16 on a CPU with native bf16, float32 elsewhere), the bf16 path's agreement
+"""The CPU fast path: `--dtype auto` (bf16 on a CPU with native bf16, float32 elsewhere), the bf16 path's agreement
 with float32, the multistep samplers and their refusals, and the photo encoded once per photo."""
 
 import dataclasses

@@ -1,4 +1,4 @@
-"""`--shadow cycles` (issue 32, item 3): Cycles' shadow catcher under the insert's map, from a proxy
+"""`--shadow cycles`: Cycles' shadow catcher under the insert's map, from a proxy
 built from the placed mask and the estimated normals, rendered in a Blender worker process.
 
 The proxy's geometry is checked without bpy; the renders (a few seconds each at a small size) are

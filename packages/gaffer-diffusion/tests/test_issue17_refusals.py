@@ -1,4 +1,4 @@
-"""Issue 17 gaps: an all-black `--mask-dir` mask, `data.val_objects` >= the objects, and `--sanitize`
+"""Refusal gaps: an all-black `--mask-dir` mask, `data.val_objects` >= the objects, and `--sanitize`
 on `evaluate` and `demo` (the maps were read with a hard-coded "zero")."""
 
 import json

@@ -1,4 +1,4 @@
-"""Issue 31's pieces: the learned normal estimator, estimated-geometry hints with the de-lit ratio,
+"""The re-shading pieces: the learned normal estimator, estimated-geometry hints with the de-lit ratio,
 the log-linear residual target, the 0.4 -> 0.5 upgrade and the `normals` / `train-normals` commands."""
 
 import dataclasses

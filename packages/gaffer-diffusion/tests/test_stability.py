@@ -1,4 +1,4 @@
-"""Where the pipeline could break (issue 4, "Stability"): each case gives finite images or a clear error."""
+"""Where the pipeline could break: each case gives finite images or a clear error."""
 
 import numpy as np
 import pytest

@@ -28,7 +28,7 @@ def _cam(arr: np.ndarray) -> EnvironmentMap:
 
 
 def _issue_case(trial: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Issue 18's case: a 512 x 1024 world map, a 1.5-degree sun (disc of radius 0.75 degrees) of radiance
+    """The reported case: a 512 x 1024 world map, a 1.5-degree sun (disc of radius 0.75 degrees) of radiance
     2e4 on black, a random camera frame."""
     rng = np.random.default_rng(trial)
     sun = rng.normal(size=3)

@@ -60,7 +60,7 @@ def test_compat_subtracts_the_authors_theta_offset() -> None:
 
 @pytest.mark.parametrize("frame,num_frames", [(1, 4), (3, 8), (5, 120), (7, 12)])
 def test_compat_spin_is_the_authors_turntable_frame(frame: int, num_frames: int) -> None:
-    """Issue 15, reading 1: `spin_deg = D` is their frame k = D N / 360 (Rz(-2 pi k / N) on the
+    """Reading 1: `spin_deg = D` is their frame k = D N / 360 (Rz(-2 pi k / N) on the
     right of the row-vector directions), not frame -k."""
     env, pose = _textured(frame), orbit_w2c_blender(30, 10, 2.0)
     spin = 360.0 * frame / num_frames

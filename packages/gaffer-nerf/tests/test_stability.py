@@ -1,4 +1,4 @@
-"""Issue 6's stability list, end to end. Cases tested elsewhere, at the layer that owns them:
+"""The stability list (where a method could break), end to end. Cases tested elsewhere, at the layer that owns them:
 
 - empty alpha mask of the field: `test_tensorf.py::test_alpha_mask_finds_a_blob_and_empty_mask_is_refused`;
 - a scene with no object, fitting: `test_fit.py::test_scene_without_object_gives_an_empty_mask_and_white_renders`;

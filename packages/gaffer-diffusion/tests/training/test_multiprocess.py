@@ -1,4 +1,4 @@
-"""Training on several processes (issue 36): 2 CPU processes in one gloo group, launched as a user
+"""Training on several processes: 2 CPU processes in one gloo group, launched as a user
 launches them (`accelerate launch --multi_gpu --num_processes 2 -m gaffer_diffusion.cli train`).
 
 - 2 processes of batch 1 train as 1 process of batch 2 (same global batch, same data stream): every
@@ -47,8 +47,8 @@ MAX_RELATIVE_DIFFERENCE = 1e-2
 """Bound on |w_two - w_one| / |w_one - w_init| over all UNet weights (global L2 norms). Elementwise
 tolerances do not apply: the cross-attention query/key weights (and the norm before them) have a zero
 true gradient (one CLIP token: the softmax over one key is 1), so AdamW moves them by its normalised
-float noise, differently for every batch layout. Measured 7.9e-4 for 2 processes vs 1 (issue 36); a
-different noise or data order (per-process randomness, before issue 36) gives ~1.1."""
+float noise, differently for every batch layout. Measured 7.9e-4 for 2 processes vs 1; a
+different noise or data order (per-process randomness, as before) gives ~1.1."""
 
 
 @pytest.fixture(autouse=True)
