@@ -11,13 +11,13 @@ import logging
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
 from typing import TypeVar
 
-from gaffer_envmap.errors import EnvmapWriteError
+from gaffer_envmap.errors import EnvmapWriteError, OutputPathError
 
-__all__ = ["atomic_files", "atomic_path", "atomic_write"]
+__all__ = ["atomic_dir", "atomic_files", "atomic_path", "atomic_write"]
 
 logger = logging.getLogger(__name__)
 
@@ -193,3 +193,69 @@ def atomic_files(directory: str | os.PathLike[str]) -> Iterator[Path]:
         if created:
             with contextlib.suppress(OSError):
                 dest.rmdir()  # only succeeds when the folder is still empty (a failed run)
+
+
+@contextlib.contextmanager
+def atomic_dir(
+    dest: str | os.PathLike[str], *, owned: Collection[str] | None = None
+) -> Iterator[Path]:
+    """Yield a staging folder; on success it replaces `dest` in one rename, else `dest` is untouched.
+
+    For an output that is a whole folder, sub-folders included (a relit field with its views, the
+    demo's pages), which `atomic_files` (flat, one rename per file) cannot publish together: the folder
+    is built in a hidden sibling (same file system) and renamed in by one `os.replace`; an earlier
+    run's folder is swapped out only then. On an error or Ctrl-C the staging folder is removed and
+    `dest` is as it was; a kill -9 can leave only a hidden `.NAME.partial-*` folder beside it.
+
+    Args:
+        dest: the output folder (its parent is created when missing).
+        owned: the top-level names this output writes. Entries of an earlier `dest` not in it (files
+            another tool put there) are moved into the new folder rather than deleted; None: the whole
+            folder is this output's.
+
+    Raises:
+        OutputPathError: `dest` exists and is not a folder.
+
+    Example:
+        >>> d = Path(tempfile.mkdtemp()) / "out"
+        >>> with atomic_dir(d, owned=("a.txt", "views")) as stage:
+        ...     _ = (stage / "a.txt").write_text("a")
+        ...     (stage / "views").mkdir()
+        >>> sorted(p.name for p in d.iterdir())
+        ['a.txt', 'views']
+    """
+    dest = Path(dest)
+    if dest.exists() and not dest.is_dir():
+        raise OutputPathError(f"`--out` {dest} is a file, not a folder; pass a folder.")
+    parent = dest.absolute().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{dest.name}.partial-", dir=parent))
+    try:
+        yield stage
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    old: Path | None = None
+    kept: list[str] = []  # foreign entries moved from the earlier folder into the new one
+    try:
+        if dest.exists():
+            if owned is not None:
+                for entry in sorted(dest.iterdir()):
+                    if entry.name not in owned and not (stage / entry.name).exists():
+                        os.replace(entry, stage / entry.name)
+                        kept.append(entry.name)
+            old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=parent))
+            os.replace(dest, old / dest.name)
+        os.replace(stage, dest)
+    except BaseException:
+        if old is not None and not dest.exists() and (old / dest.name).exists():
+            os.replace(old / dest.name, dest)  # put the earlier run back
+        if dest.is_dir() and stage.exists():
+            for name in kept:  # and the entries that were not ours
+                with contextlib.suppress(OSError):
+                    os.replace(stage / name, dest / name)
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    finally:
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)

@@ -555,7 +555,7 @@ def _relight(args: argparse.Namespace) -> int:
     device = preflight.resolve_device(args.device)
 
     from gaffer_diffusion import RuntimeConfig
-    from gaffer_nerf._atomic_dir import atomic_output_dir
+    from gaffer_envmap.atomic import atomic_dir
     from gaffer_nerf.checkpoint import load_field, save_field
     from gaffer_nerf.data import read_gaffer_data_object
     from gaffer_nerf.evaluate import write_images
@@ -613,7 +613,7 @@ def _relight(args: argparse.Namespace) -> int:
     )
     # the field, its report and the relit views as one set: built beside --out, renamed in once
     owned = (*preflight.FIELD_FILES, "relight_report.json", "relit_views")
-    with atomic_output_dir(args.out, owned=owned) as stage:
+    with atomic_dir(args.out, owned=owned) as stage:
         save_field(res.field, stage, extra={"relight_report.json": report})
         if res.relit_views is not None:
             names = [f"{i:03d}" for i in range(res.relit_views.shape[0])]
