@@ -116,10 +116,10 @@ def _sampling_parts(
     return sampling, args.latent_mode or sampling.latent_mode
 
 
-def _model_choice(args: argparse.Namespace) -> ModelChoice:
+def _model_choice(args: argparse.Namespace, defaults: DefaultSampling | None = None) -> ModelChoice:
     """The model flags, after `_check_sampling_args` and `_check_model_args`; the model folder's
-    sampling is read here, once per call."""
-    sampling, latent_mode = _sampling_parts(args, _defaults(args))
+    sampling is read here, once per call (or given, when the caller read it already)."""
+    sampling, latent_mode = _sampling_parts(args, _defaults(args) if defaults is None else defaults)
     return ModelChoice(
         checkpoint=args.checkpoint,
         base_model=args.base_model,
@@ -517,18 +517,7 @@ def _evaluate_dataset_request(args: argparse.Namespace, reports: Reports) -> Eva
     defaults = _defaults(args)
     object_fraction = _object_fraction_of(args.object_fraction, defaults)
     _check_model_args(args)
-    sampling, latent_mode = _sampling_parts(args, defaults)
-    model = ModelChoice(
-        checkpoint=args.checkpoint,
-        base_model=args.base_model,
-        sampling=sampling,
-        latent_mode=latent_mode,
-        scheduler=args.scheduler,
-        runtime=_runtime_choice(args, sampling.compat),
-        seed=args.seed,
-        batch_size=args.batch_size,
-        full_frame=args.full_frame,
-    )
+    model = _model_choice(args, defaults)
     from gaffer_diffusion.evaluation import dataset_pairs
 
     pairs = dataset_pairs(
