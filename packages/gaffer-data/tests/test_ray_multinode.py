@@ -42,10 +42,11 @@ from gaffer_data.testing import (
 
 pytestmark = pytest.mark.blender
 
-CONFIG = tiny_config(views=2, lightings=3)
-IMAGES = 2 * (
-    3 + 1
-)  # per object: 3 lit + the area render per view; enough for a kill to land mid-way
+# 64 samples at 64 px: each image takes long enough (a fraction of a second) that the worker cannot
+# finish the second half of its object between the in-progress check and the kill (at 4 samples and
+# 32 px it did, and the kill test skipped instead of testing a redo)
+CONFIG = tiny_config(views=2, lightings=3, resolution=64, samples=64)
+IMAGES = 2 * (3 + 1)  # per object: 3 lit + the area render per view
 
 
 @pytest.fixture(scope="module")
