@@ -47,6 +47,9 @@ LightingCompat = Compat
 
 LatentMode = Literal["mode", "sample"]
 
+LossSpace = Literal["diffusion", "display_object"]
+"""What the loss compares (`TrainLoopConfig.loss_space`)."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class ModelSource:
@@ -242,6 +245,15 @@ class TrainLoopConfig:
             to how much the lighting changes it, as mean per-image PSNR does. Plain MSE lets the
             pairs with the largest change (e.g. night -> studio) dominate, and the model then
             invents changes on pairs whose lighting barely differs.
+        loss_space: "diffusion" (the paper): MSE of the UNet output against the scheduler's
+            prediction target in latent space. "display_object" (pixel-space residual models):
+            the clean sample the UNet's output implies at its timestep, decoded and applied to the
+            input, against the target image in display space, weighted by the object's alpha: the
+            error that masked display-space PSNR scores. With `timestep_range` [999, 999] this
+            trains the one-step sampler end to end, as Garcia et al. 2024 ("Fine-Tuning
+            Image-Conditional Diffusion Models is Easier than You Think") fine-tune Marigold with
+            its task loss at a single step; it needs the zero-terminal-SNR schedule's
+            v-prediction or sample prediction (epsilon cannot give the sample at t = 999).
     """
 
     max_steps: int = 80_000
@@ -258,8 +270,19 @@ class TrainLoopConfig:
     allow_tf32: bool = True
     timestep_range: tuple[int, int] = (0, 999)
     residual_loss_floor: float | None = None
+    loss_space: LossSpace = "diffusion"
 
     def __post_init__(self) -> None:
+        if self.loss_space not in ("diffusion", "display_object"):
+            raise ConfigError(
+                f"`train.loss_space` is {self.loss_space!r}; expected 'diffusion' or "
+                "'display_object'."
+            )
+        if self.loss_space == "display_object" and self.residual_loss_floor is not None:
+            raise ConfigError(
+                "`train.residual_loss_floor` weighs the latent-space loss; with `train.loss_space` "
+                "'display_object' set it to null."
+            )
         if self.residual_loss_floor is not None and not self.residual_loss_floor > 0:
             raise ConfigError(
                 f"`train.residual_loss_floor` is {self.residual_loss_floor}; expected a positive "

@@ -16,11 +16,12 @@ from jaxtyping import Float
 from torch import Tensor
 
 from gaffer_diffusion.conditioning import clip_preprocess
+from gaffer_diffusion.configs import ModelConfig
 from gaffer_diffusion.errors import ConfigError
 from gaffer_diffusion.geometry import input_normals
 from gaffer_diffusion.hints import hints_at
 from gaffer_diffusion.models.build import build_scheduler
-from gaffer_diffusion.models.model import NeuralGafferModel, vae_posterior
+from gaffer_diffusion.models.model import NeuralGafferModel, vae_decode, vae_posterior
 from gaffer_diffusion.models.pixel import PixelPosterior
 from gaffer_diffusion.training.batch import TrainBatch
 from gaffer_diffusion.training.config import TrainConfig
@@ -113,6 +114,8 @@ class TrainingObjective:
                 "`train.residual_loss_floor` is set but the model diffuses the target itself "
                 "(`ModelConfig.residual` false); remove it, or train a residual model."
             )
+        if config.train.loss_space == "display_object":
+            _check_display_object(model.config, self.scheduler.config["prediction_type"])
         self.alphas_cumprod = self.scheduler.alphas_cumprod.to(self.device)
         cuda = self.device.type == "cuda"
         mp = config.train.mixed_precision
@@ -181,6 +184,7 @@ class TrainingObjective:
             )  # [B, 1, D]
             clip = clip.repeat_interleave(t, dim=0)  # [BT, 1, D]
             parts = [image_lat, hdr_lat, ldr_lat]
+            mask = None
             if alphas is not None:  # radiance hints of the (possibly mirrored) inputs' masks
                 mask = alphas.repeat_interleave(t, dim=0)
                 geometry = m.config.hint_geometry
@@ -213,6 +217,11 @@ class TrainingObjective:
         with self.acc.autocast():
             # [BT, 16 (+12), h, w]  z_t + 3x4 conditioning latents (+ hints)
             pred = unet(torch.cat([z_t, cond], dim=1), timesteps, encoder_hidden_states=clip).sample
+        if cfg.train.loss_space == "display_object":
+            z0_pred = _predicted_z0(m.config.scheduler.prediction_type, pred.float(), z_t, abar)
+            image_pred = vae_decode(m.vae, m.decodable_latents(z0_pred, image_lat))  # [-1, 1]
+            weight = mask if mask is not None else torch.ones_like(targets[:, :1])
+            return display_object_loss(image_pred, targets * 2.0 - 1.0, weight)
         target = _prediction_target(m.config.scheduler.prediction_type, z0, noise, abar)
         return diffusion_loss(pred.float(), target, z0, cfg.train.residual_loss_floor)
 
@@ -260,6 +269,41 @@ def diffusion_loss(
     weight = 1.0 / (z0.float().pow(2).mean(dim=(1, 2, 3)) + residual_loss_floor)  # [n]
     per_item = (pred - target).pow(2).mean(dim=(1, 2, 3))
     return (per_item * weight / weight.mean()).mean()
+
+
+def display_object_loss(
+    image_pred: Float[Tensor, "n 3 H W"],
+    image_target: Float[Tensor, "n 3 H W"],
+    alpha: Float[Tensor, "n 1 H W"],
+) -> Tensor:
+    """Mean over items of the alpha-weighted MSE of display images given in [-1, 1], on the [0, 1]
+    scale that PSNR uses (`TrainLoopConfig.loss_space` "display_object"); an item with an empty mask
+    adds 0."""
+    err = ((image_pred.float() - image_target.float()) * 0.5).pow(2).mean(dim=1, keepdim=True)
+    w = alpha.float()
+    per_item = (err * w).sum(dim=(1, 2, 3)) / w.sum(dim=(1, 2, 3)).clamp_min(1.0)
+    return per_item.mean()
+
+
+def _check_display_object(model: ModelConfig, prediction_type: str) -> None:
+    if model.vae.kind != "pixel" or not model.residual:
+        raise ConfigError(
+            "`train.loss_space` 'display_object' decodes the UNet's output at every step, which is "
+            "exact and cheap only for pixel-space residual models (`vae.kind` 'pixel', "
+            "`residual` true); use 'diffusion' for this model."
+        )
+    if prediction_type not in ("v_prediction", "sample"):
+        raise ConfigError(
+            f"`train.loss_space` 'display_object' needs the clean sample from the UNet's output; "
+            f"the schedule predicts {prediction_type!r}; use 'v_prediction' or 'sample'."
+        )
+
+
+def _predicted_z0(prediction_type: str, pred: Tensor, z_t: Tensor, abar: Tensor) -> Tensor:
+    """The clean sample implied by the UNet's output at `z_t` (DDIM's x0 estimate)."""
+    if prediction_type == "v_prediction":
+        return abar.sqrt() * z_t - (1.0 - abar).sqrt() * pred
+    return pred
 
 
 def _prediction_target(

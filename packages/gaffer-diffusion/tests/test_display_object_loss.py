@@ -1,0 +1,131 @@
+"""`TrainLoopConfig.loss_space = "display_object"`: the one-step sample, decoded and applied to the
+input, scored against the target in display space over the object (what masked PSNR measures)."""
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from gaffer_diffusion import ConfigError
+from gaffer_diffusion.training.config import TrainLoopConfig
+from gaffer_diffusion.training.objective import _predicted_z0, display_object_loss
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
+
+def test_loss_is_the_alpha_weighted_display_mse_and_ignores_the_background() -> None:
+    g = torch.Generator().manual_seed(0)
+    pred = torch.rand(2, 3, 8, 8, generator=g) * 2 - 1
+    target = torch.rand(2, 3, 8, 8, generator=g) * 2 - 1
+    alpha = torch.zeros(2, 1, 8, 8)
+    alpha[0, :, 2:6, 2:6] = 1.0
+    alpha[1, :, :4] = 1.0
+    want = []
+    for i in range(2):
+        m = alpha[i, 0] > 0
+        err = ((pred[i] - target[i]) * 0.5).pow(2).mean(dim=0)  # [0, 1] scale, as PSNR
+        want.append(err[m].mean())
+    torch.testing.assert_close(display_object_loss(pred, target, alpha), torch.stack(want).mean())
+    # errors outside the mask cost nothing
+    off = pred.clone()
+    off[0, :, 0, 0] += 5.0
+    torch.testing.assert_close(
+        display_object_loss(off, target, alpha), display_object_loss(pred, target, alpha)
+    )
+    # an empty mask adds 0 instead of NaN
+    empty = display_object_loss(pred, target, torch.zeros(2, 1, 8, 8))
+    assert float(empty) == 0.0
+
+
+def test_predicted_sample_is_ddims_x0_estimate() -> None:
+    from diffusers import DDIMScheduler
+
+    from gaffer_diffusion.configs import get_preset
+    from gaffer_diffusion.models.build import build_scheduler
+
+    cfg = get_preset("gaffer-tiny").scheduler
+    sched = build_scheduler(cfg)
+    ddim = DDIMScheduler.from_config(sched.config)
+    ddim.set_timesteps(1)
+    g = torch.Generator().manual_seed(1)
+    z_t, v = torch.randn(2, 4, 8, 8, generator=g), torch.randn(2, 4, 8, 8, generator=g)
+    t = int(ddim.timesteps[0])
+    abar = ddim.alphas_cumprod[t].view(1, 1, 1, 1)
+    ours = _predicted_z0(cfg.prediction_type, v, z_t, abar)
+    torch.testing.assert_close(ours, ddim.step(v, t, z_t).pred_original_sample)
+    if cfg.rescale_betas_zero_snr:  # gaffer-tiny: at t = 999 the sample is -v, whatever z_t
+        torch.testing.assert_close(ours, -v)
+
+
+def test_refusals_name_the_setting() -> None:
+    from gaffer_diffusion.training import TrainConfig
+
+    with pytest.raises(ConfigError, match=r"loss_space"):
+        TrainConfig.from_dict(
+            {"output_dir": "x", "data": {"root": "y"}, "train": {"loss_space": "pixels"}}
+        )
+    with pytest.raises(ConfigError, match=r"residual_loss_floor.*null"):
+        TrainLoopConfig(loss_space="display_object", residual_loss_floor=0.1)
+
+
+def _run(tmp_path: Path, preset: str, extra_model: dict | None = None, **train: object):
+    pytest.importorskip("gaffer_data")
+    pytest.importorskip("accelerate")
+    from gaffer_diffusion.training import TrainConfig
+    from gaffer_diffusion.training import train as run_training
+    from gaffer_diffusion.training.testing import write_synthetic_dataset
+
+    root = write_synthetic_dataset(tmp_path / "data", objects=2, views=2, lightings=3)
+    cfg = TrainConfig.from_dict(
+        {
+            "output_dir": str(tmp_path / "run"),
+            "model": {"init": "preset", "preset": preset, "resolution": 32, **(extra_model or {})},
+            "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
+            "optim": {"lr": 1e-3, "warmup_steps": 1},
+            "train": {
+                "max_steps": 3,
+                "batch_size": 2,
+                "mixed_precision": "no",
+                "gradient_checkpointing": False,
+                "ema_decay": 0.0,
+                "cfg_dropout_p": 0.0,
+                "timestep_range": [999, 999],
+                "loss_space": "display_object",
+                **train,
+            },
+            "checkpoint": {"every_steps": 3, "keep": 1},
+            "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
+            "validation": {"every_steps": 0},
+        }
+    )
+    return run_training(cfg)
+
+
+def test_gaffer_tiny_trains_end_to_end_on_the_display_loss(tmp_path: Path) -> None:
+    result = _run(tmp_path, "gaffer-tiny")
+    losses = torch.tensor(result.losses)
+    assert result.step == 3 and torch.isfinite(losses).all()
+    # a masked display MSE on the [0, 1] scale: positive and at most 1
+    assert bool(((losses > 0) & (losses <= 1.0)).all())
+
+
+def test_a_latent_model_is_refused_before_training(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"display_object.*pixel"):
+        _run(tmp_path, "tiny")
+
+
+def test_epsilon_prediction_is_refused() -> None:
+    """Epsilon cannot give the sample at t = 999 of a zero-terminal-SNR schedule (abar = 0)."""
+    from gaffer_diffusion.configs import get_preset
+    from gaffer_diffusion.training.objective import _check_display_object
+
+    model = get_preset("gaffer-tiny")
+    _check_display_object(model, "v_prediction")
+    with pytest.raises(ConfigError, match=r"display_object.*epsilon"):
+        _check_display_object(model, "epsilon")
