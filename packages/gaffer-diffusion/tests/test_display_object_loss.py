@@ -1,6 +1,7 @@
 """`TrainLoopConfig.loss_space = "display_object"`: the one-step sample, decoded and applied to the
 input, scored against the target in display space over the object (what masked PSNR measures)."""
 
+import math
 from pathlib import Path
 
 import pytest
@@ -8,7 +9,11 @@ import torch
 
 from gaffer_diffusion import ConfigError
 from gaffer_diffusion.training.config import TrainLoopConfig
-from gaffer_diffusion.training.objective import _predicted_z0, display_object_loss
+from gaffer_diffusion.training.objective import (
+    DISPLAY_LOSS_FLOOR,
+    _predicted_z0,
+    display_object_loss,
+)
 
 
 @pytest.fixture(autouse=True)
@@ -19,7 +24,16 @@ def one_thread():
     torch.set_num_threads(old)
 
 
-def test_loss_is_the_alpha_weighted_display_mse_and_ignores_the_background() -> None:
+def _mse_pair(pred, target, mask, aligned):
+    """Masked MSE of one pair on the [0, 1] scale, as the evaluation computes it (plain loops)."""
+    p, t = (pred + 1) * 0.5, (target + 1) * 0.5
+    if aligned:
+        p = torch.stack([p[c] * t[c][mask].mean() / p[c][mask].mean() for c in range(3)])
+    mse = (p - t).pow(2).mean(dim=0)[mask].mean()
+    return mse
+
+
+def test_loss_is_minus_the_mean_log_mse_raw_and_aligned_over_the_object() -> None:
     g = torch.Generator().manual_seed(0)
     pred = torch.rand(2, 3, 8, 8, generator=g) * 2 - 1
     target = torch.rand(2, 3, 8, 8, generator=g) * 2 - 1
@@ -29,8 +43,11 @@ def test_loss_is_the_alpha_weighted_display_mse_and_ignores_the_background() -> 
     want = []
     for i in range(2):
         m = alpha[i, 0] > 0
-        err = ((pred[i] - target[i]) * 0.5).pow(2).mean(dim=0)  # [0, 1] scale, as PSNR
-        want.append(err[m].mean())
+        raw = _mse_pair(pred[i], target[i], m, aligned=False)
+        ali = _mse_pair(pred[i], target[i], m, aligned=True)
+        want.append(
+            0.5 * (torch.log(raw + DISPLAY_LOSS_FLOOR) + torch.log(ali + DISPLAY_LOSS_FLOOR))
+        )
     torch.testing.assert_close(display_object_loss(pred, target, alpha), torch.stack(want).mean())
     # errors outside the mask cost nothing
     off = pred.clone()
@@ -38,9 +55,26 @@ def test_loss_is_the_alpha_weighted_display_mse_and_ignores_the_background() -> 
     torch.testing.assert_close(
         display_object_loss(off, target, alpha), display_object_loss(pred, target, alpha)
     )
-    # an empty mask adds 0 instead of NaN
+    # a change of exposure moves only the raw half: the aligned half is blind to it
+    scaled = (target + 1) * 0.5 * 0.5 * 2 - 1  # the target at half its brightness
+    loss_scaled = display_object_loss(scaled, target, alpha)
+    floor = torch.log(torch.tensor(DISPLAY_LOSS_FLOOR))
+    assert float(loss_scaled) > float(floor) + 0.5
+    aligned_only = (
+        2 * loss_scaled
+        - torch.stack(
+            [
+                torch.log(
+                    _mse_pair(scaled[i], target[i], alpha[i, 0] > 0, False) + DISPLAY_LOSS_FLOOR
+                )
+                for i in range(2)
+            ]
+        ).mean()
+    )
+    torch.testing.assert_close(aligned_only, floor, atol=1e-4, rtol=0)
+    # an empty mask adds ln(floor) instead of NaN
     empty = display_object_loss(pred, target, torch.zeros(2, 1, 8, 8))
-    assert float(empty) == 0.0
+    torch.testing.assert_close(empty, floor)
 
 
 def test_predicted_sample_is_ddims_x0_estimate() -> None:
@@ -111,8 +145,8 @@ def test_gaffer_tiny_trains_end_to_end_on_the_display_loss(tmp_path: Path) -> No
     result = _run(tmp_path, "gaffer-tiny")
     losses = torch.tensor(result.losses)
     assert result.step == 3 and torch.isfinite(losses).all()
-    # a masked display MSE on the [0, 1] scale: positive and at most 1
-    assert bool(((losses > 0) & (losses <= 1.0)).all())
+    # a mean of ln(MSE + floor) on the [0, 1] scale: between ln(floor) and ln(1 + floor)
+    assert bool(((losses > math.log(DISPLAY_LOSS_FLOOR)) & (losses < 0.0)).all())
 
 
 def test_a_latent_model_is_refused_before_training(tmp_path: Path) -> None:

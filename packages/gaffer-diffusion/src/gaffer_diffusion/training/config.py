@@ -248,8 +248,9 @@ class TrainLoopConfig:
         loss_space: "diffusion" (the paper): MSE of the UNet output against the scheduler's
             prediction target in latent space. "display_object" (pixel-space residual models):
             the clean sample the UNet's output implies at its timestep, decoded and applied to the
-            input, against the target image in display space, weighted by the object's alpha: the
-            error that masked display-space PSNR scores. With `timestep_range` [999, 999] this
+            input, against the target image in display space over the object's alpha: minus the
+            mean of the pairs' masked PSNR, raw and channel-aligned (`display_object_loss`), the
+            scores the model is judged on. With `timestep_range` [999, 999] this
             trains the one-step sampler end to end, as Garcia et al. 2024 ("Fine-Tuning
             Image-Conditional Diffusion Models is Easier than You Think") fine-tune Marigold with
             its task loss at a single step; it needs the zero-terminal-SNR schedule's

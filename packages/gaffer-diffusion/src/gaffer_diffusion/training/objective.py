@@ -271,18 +271,40 @@ def diffusion_loss(
     return (per_item * weight / weight.mean()).mean()
 
 
+DISPLAY_LOSS_FLOOR = 1e-4
+"""Added to each pair's MSE before its log (the [0, 1] scale: a 40 dB cap), so a pair that is
+already almost right cannot dominate the batch."""
+
+
 def display_object_loss(
     image_pred: Float[Tensor, "n 3 H W"],
     image_target: Float[Tensor, "n 3 H W"],
     alpha: Float[Tensor, "n 1 H W"],
 ) -> Tensor:
-    """Mean over items of the alpha-weighted MSE of display images given in [-1, 1], on the [0, 1]
-    scale that PSNR uses (`TrainLoopConfig.loss_space` "display_object"); an item with an empty mask
-    adds 0."""
-    err = ((image_pred.float() - image_target.float()) * 0.5).pow(2).mean(dim=1, keepdim=True)
+    """The negated mean PSNR of the pairs over their objects, raw and channel-aligned, in natural
+    log units (`TrainLoopConfig.loss_space` "display_object"); images in [-1, 1], display space.
+
+    Per pair: mean of ln(MSE_raw + f) and ln(MSE_aligned + f), MSEs alpha-weighted on the [0, 1]
+    scale, f = `DISPLAY_LOSS_FLOOR`. "Aligned" scales each channel of the prediction by
+    mean(target) / mean(prediction) over the object first (as the evaluation does), which removes
+    exposure and tint and leaves the spatial shading: half the loss cannot be lowered by a change of
+    brightness, only by moving the light. The log makes each pair count as its PSNR does in a mean
+    over pairs. An item with an empty mask adds ln(f) (no gradient).
+    """
+    pred = (image_pred.float() + 1.0) * 0.5
+    gt = (image_target.float() + 1.0) * 0.5
     w = alpha.float()
-    per_item = (err * w).sum(dim=(1, 2, 3)) / w.sum(dim=(1, 2, 3)).clamp_min(1.0)
-    return per_item.mean()
+    area = w.sum(dim=(1, 2, 3)).clamp_min(1.0)  # [n]
+
+    def masked_mse(x: Tensor) -> Tensor:
+        return ((x - gt).pow(2).mean(dim=1, keepdim=True) * w).sum(dim=(1, 2, 3)) / area
+
+    mean_pred = (pred * w).sum(dim=(2, 3), keepdim=True) / area.view(-1, 1, 1, 1)
+    mean_gt = (gt * w).sum(dim=(2, 3), keepdim=True) / area.view(-1, 1, 1, 1)
+    aligned = pred * (mean_gt / mean_pred.clamp_min(1e-4))
+    raw_term = torch.log(masked_mse(pred) + DISPLAY_LOSS_FLOOR)
+    aligned_term = torch.log(masked_mse(aligned) + DISPLAY_LOSS_FLOOR)
+    return (0.5 * (raw_term + aligned_term)).mean()
 
 
 def _check_display_object(model: ModelConfig, prediction_type: str) -> None:
