@@ -108,35 +108,20 @@ def test_refusals_name_the_setting() -> None:
         TrainLoopConfig(loss_space="display_object", residual_loss_floor=0.1)
 
 
-def _run(tmp_path: Path, preset: str, extra_model: dict | None = None, **train: object):
+def _run(tmp_path: Path, preset: str):
     pytest.importorskip("gaffer_data")
     pytest.importorskip("accelerate")
-    from gaffer_diffusion.training import TrainConfig
     from gaffer_diffusion.training import train as run_training
-    from gaffer_diffusion.training.testing import write_synthetic_dataset
+    from gaffer_diffusion.training.testing import tiny_train_config, write_synthetic_dataset
 
     root = write_synthetic_dataset(tmp_path / "data", objects=2, views=2, lightings=3)
-    cfg = TrainConfig.from_dict(
-        {
-            "output_dir": str(tmp_path / "run"),
-            "model": {"init": "preset", "preset": preset, "resolution": 32, **(extra_model or {})},
-            "data": {"root": str(root), "val_objects": 1, "envmap_height": 8},
-            "optim": {"lr": 1e-3, "warmup_steps": 1},
-            "train": {
-                "max_steps": 3,
-                "batch_size": 2,
-                "mixed_precision": "no",
-                "gradient_checkpointing": False,
-                "ema_decay": 0.0,
-                "cfg_dropout_p": 0.0,
-                "timestep_range": [999, 999],
-                "loss_space": "display_object",
-                **train,
-            },
-            "checkpoint": {"every_steps": 3, "keep": 1},
-            "logging": {"every_steps": 1, "progress_bar": False, "tensorboard": False},
-            "validation": {"every_steps": 0},
-        }
+    one_step = {"timestep_range": [999, 999], "loss_space": "display_object", "cfg_dropout_p": 0.0}
+    cfg = tiny_train_config(
+        tmp_path / "run",
+        root,
+        model={"preset": preset},
+        train={"max_steps": 3, "ema_decay": 0.0, **one_step},
+        checkpoint={"every_steps": 3, "keep": 1},
     )
     return run_training(cfg)
 
