@@ -69,12 +69,15 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
         load_config(tmp_path / "missing.json")
 
 
-@pytest.mark.parametrize("name", ["neural-gaffer-paper", "tiny-smoke"])
+@pytest.mark.parametrize("name", ["neural-gaffer-paper", "tiny-smoke", "gaffer-tiny-stage5"])
 def test_shipped_configs_load(name: str) -> None:
     cfg = load_config(CONFIGS / f"{name}.json")
     if name == "neural-gaffer-paper":
         assert cfg.model.init == "zero123-xl" and cfg.train.max_steps == 80_000
         assert cfg.train.batch_size * cfg.data.targets_per_sample * 8 == 1024
+    if name == "gaffer-tiny-stage5":  # gaffer-tiny 0.6: the one-step sampler trained on its score
+        assert cfg.train.loss_space == "display_object" and cfg.train.timestep_range == (999, 999)
+        assert cfg.model.init == "pretrained" and cfg.train.residual_loss_floor is None
 
 
 def test_object_fraction_defaults_to_the_whole_render_and_is_validated() -> None:
