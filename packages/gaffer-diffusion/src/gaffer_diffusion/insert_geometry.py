@@ -192,6 +192,15 @@ class KeyLight:
         """`[3]` unit direction towards the light (Blender world, z up)."""
         return sun_direction(self.elevation_deg, self.azimuth_deg)
 
+    def describe(self, angle_format: str = "g") -> str:
+        """ "at azimuth A, elevation E, strength S, D degrees": the output line's words for it
+        (`angle_format` formats the two angles: the CLI prints them to 0.1 degree)."""
+        return (
+            f"at azimuth {self.azimuth_deg:{angle_format}}, elevation "
+            f"{self.elevation_deg:{angle_format}}, strength {self.strength:g}, "
+            f"{self.size_deg:g} degrees"
+        )
+
 
 @dataclass(frozen=True, kw_only=True)
 class DominantLight:

@@ -545,10 +545,7 @@ class Engine:
             )
         key = settings.key_light
         source = "the background wrapped onto the sphere + " + (
-            f"a key light at azimuth {key.azimuth_deg:g}, elevation {key.elevation_deg:g}, "
-            f"strength {key.strength:g}, {key.size_deg:g} degrees"
-            if key is not None
-            else "no key light (strength 0)"
+            f"a key light {key.describe()}" if key is not None else "no key light (strength 0)"
         )
         env = light_from_photo(background.rgb, camera, key)
         return InsertLighting(envmap=env, camera=camera, key_light=key, source=source)

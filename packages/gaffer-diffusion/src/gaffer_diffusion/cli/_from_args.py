@@ -697,9 +697,7 @@ def _insert_lighting(
     if light_source is not None:
         return _lighting_from_source(args, light_source, background, camera)
     source = "lighting: the background wrapped onto the sphere (--light-from-photo) + " + (
-        f"{'the sun of --sun-at' if args.sun_at else 'a key light'} at azimuth "
-        f"{key.azimuth_deg:.1f}, elevation {key.elevation_deg:.1f}, strength {key.strength:g}, "
-        f"{key.size_deg:g} degrees"
+        f"{'the sun of --sun-at' if args.sun_at else 'a key light'} {key.describe('.1f')}"
         if key is not None
         else "no key light: the photo rarely shows its key light; give it with `--key-light AZ,EL`"
     )
