@@ -15,13 +15,7 @@ from gaffer_diffusion.training.objective import (
     display_object_loss,
 )
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _mse_pair(pred, target, mask, aligned):

@@ -20,13 +20,7 @@ from gaffer_diffusion.loading import load_pretrained, model_config_matches, save
 from gaffer_diffusion.models import PixelAutoencoder, build_model, build_vae
 from gaffer_diffusion.testing import random_conditions
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _small_pixel_config() -> ModelConfig:

@@ -24,14 +24,7 @@ from gaffer_diffusion.training import loop as loop_mod
 from gaffer_diffusion.training.testing import tiny_train_config, write_synthetic_dataset
 from gaffer_diffusion.training.tracking import read_log
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    # 2 shared cores: one intra-op thread is ~10x faster than two contending ones for tiny models
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
