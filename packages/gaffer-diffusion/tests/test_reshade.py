@@ -29,7 +29,7 @@ from gaffer_diffusion.hints import (
 from gaffer_diffusion.models import build_model
 from gaffer_diffusion.pipelines import RelightPipeline, SamplingConfig
 from gaffer_diffusion.pipelines.relight import _mirror_normals
-from gaffer_diffusion.upgrade import to_estimated_geometry
+from gaffer_diffusion.upgrade import to_estimated_geometry, with_new_unet
 
 H = 32
 
@@ -215,6 +215,38 @@ def test_upgrade_keeps_what_the_model_computed_when_the_new_channels_are_zero() 
     assert float(new.unet.conv_in.weight.detach()[:, w.shape[1] :].abs().max()) == 0.0
     with pytest.raises(ConfigError, match="already"):
         to_estimated_geometry(new, scaling_factor=2.0)
+
+
+def test_a_new_unet_is_wider_seeded_and_keeps_everything_else(tmp_path: Path) -> None:
+    from gaffer_diffusion.loading import load_pretrained, save_pretrained
+    from gaffer_diffusion.upgrade import main as upgrade_main
+
+    old = build_model(_estimated_preset(), seed=0)
+    widths = tuple(2 * c for c in old.config.unet.block_out_channels)
+    new = with_new_unet(old, widths, seed=3)
+    assert new.unet.config.block_out_channels == widths == new.config.unet.block_out_channels
+    assert new.config.unet.in_channels == old.config.unet.in_channels
+    assert new.image_encoder is old.image_encoder and new.vae is old.vae
+    assert dataclasses.replace(new.config, unet=old.config.unet) == old.config
+    again = with_new_unet(old, widths, seed=3).unet.state_dict()
+    other = with_new_unet(old, widths, seed=4).unet.state_dict()
+    key = "conv_in.weight"
+    assert torch.equal(new.unet.state_dict()[key], again[key])
+    assert not torch.equal(again[key], other[key])
+    with pytest.raises(ConfigError, match="levels"):
+        with_new_unet(old, widths[:-1])
+    with pytest.raises(ConfigError, match="norm_num_groups"):
+        with_new_unet(old, (widths[0] + 1, *widths[1:]))
+    # the command writes a folder that loads with the new widths and the old encoder
+    save_pretrained(old, tmp_path / "src")
+    arg = ",".join(str(c) for c in widths)
+    assert (
+        upgrade_main([str(tmp_path / "src"), str(tmp_path / "dst"), "--new-unet-channels", arg])
+        == 0
+    )
+    loaded = load_pretrained(tmp_path / "dst").model
+    assert loaded.config.unet.block_out_channels == widths
+    assert loaded.config.hint_geometry == old.config.hint_geometry
 
 
 def test_an_estimated_geometry_model_relights_saves_and_loads(tmp_path: Path, monkeypatch) -> None:
