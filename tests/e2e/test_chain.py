@@ -161,6 +161,21 @@ def test_render_train_relight_multiview_fit_relight_evaluate(tmp_path: Path) -> 
     unet_file = Path("unet") / "diffusion_pytorch_model.safetensors"
     a, b = load_file(exported / unet_file), load_file(final / unet_file)
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    # --half: the same weights rounded to float16 in a file of half the size; they load as float32
+    halved = tmp_path / "exported-half"
+    _cli("gaffer_diffusion.cli", "export", run / "checkpoints" / checkpoints[-1], "--out", halved, "--half")  # fmt: skip
+    h = load_file(halved / unet_file)
+    assert h.keys() == a.keys() and all(h[k].dtype == np.float16 for k in h)
+    assert all(np.array_equal(h[k], a[k].astype(np.float16)) for k in h)
+    assert (halved / unet_file).stat().st_size < 0.6 * (exported / unet_file).stat().st_size
+    import torch
+
+    from gaffer_diffusion.loading import load_pretrained
+
+    loaded = load_pretrained(halved).model.unet
+    assert all(p.dtype == torch.float32 for p in loaded.parameters())
+    k0 = next(iter(h))
+    np.testing.assert_array_equal(loaded.state_dict()[k0].numpy(), h[k0].astype(np.float32))
     # the encoding and framing it was trained with travel with the weights (relight below has no
     # --compat: before, a self-trained model was relit with the authors' encoding unless told)
     for folder in (final, exported):

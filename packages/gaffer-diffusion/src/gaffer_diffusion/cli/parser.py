@@ -292,6 +292,11 @@ def _parser() -> argparse.ArgumentParser:
     x.add_argument("checkpoint", type=Path, help="a checkpoint-NNNNNNNN/ folder of a training run")
     x.add_argument("--out", type=Path, required=True, help="destination model folder")
     x.add_argument("--raw", action="store_true", help="the trained weights instead of the EMA")
+    x.add_argument(
+        "--half",
+        action="store_true",
+        help="store the UNet's weights as float16 (half the file; loaded back as float32)",
+    )
 
     add_app_arguments(
         sub.add_parser(
