@@ -70,15 +70,15 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "name", ["neural-gaffer-paper", "tiny-smoke", "gaffer-tiny-stage5", "gaffer-tiny-0.7"]
+    "name", ["neural-gaffer-paper", "tiny-smoke", "gaffer-tiny-stage5", "gaffer-tiny-wide"]
 )
 def test_shipped_configs_load(name: str) -> None:
     cfg = load_config(CONFIGS / f"{name}.json")
     if name == "neural-gaffer-paper":
         assert cfg.model.init == "zero123-xl" and cfg.train.max_steps == 80_000
         assert cfg.train.batch_size * cfg.data.targets_per_sample * 8 == 1024
-    if name in ("gaffer-tiny-stage5", "gaffer-tiny-0.7"):
-        # gaffer-tiny 0.6 and 0.7: the one-step sampler trained on its score
+    if name in ("gaffer-tiny-stage5", "gaffer-tiny-wide"):
+        # gaffer-tiny 0.6 and the wide experiment: the one-step sampler trained on its score
         assert cfg.train.loss_space == "display_object" and cfg.train.timestep_range == (999, 999)
         assert cfg.model.init == "pretrained" and cfg.train.residual_loss_floor is None
 

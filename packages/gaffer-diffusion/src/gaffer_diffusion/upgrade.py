@@ -6,10 +6,10 @@ The UNet's first convolution gains the three de-lit-ratio hint channels, zero-in
 and the config switches `hint_geometry` to "estimated" and `residual_space` to "log_linear" with a
 new target scale. Fine-tuning (`configs/gaffer-tiny-stage4.json`) then teaches it the new target.
 
-`with_new_unet` starts a wider model (gaffer-tiny 0.7) from the same folder: a UNet of new channel
+`with_new_unet` starts a wider model from the same folder: a UNet of new channel
 widths, randomly initialised from a seed, beside the folder's frozen image encoder, pixel autoencoder,
 hints and residual target, which every later stage keeps. Stage 5's display-space loss then trains it
-from nothing (`configs/gaffer-tiny-0.7.json`); a wider UNet could not inherit the old weights.
+from nothing (`configs/gaffer-tiny-wide.json`); a wider UNet could not inherit the old weights.
 
     python -m gaffer_diffusion.upgrade SRC DST --scaling-factor 1.5
     python -m gaffer_diffusion.upgrade SRC DST --new-unet-channels 32,64,128,256 --seed 0
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     how.add_argument(
         "--new-unet-channels",
         type=_channels,
-        help="a new random UNet of these widths per level (0.7: 32,64,128,256)",
+        help="a new random UNet of these widths per level (e.g. 32,64,128,256)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the new UNet (default 0)")
     args = parser.parse_args(argv)
