@@ -246,6 +246,11 @@ def test_a_new_unet_is_wider_seeded_and_keeps_everything_else(tmp_path: Path) ->
     )
     loaded = load_pretrained(tmp_path / "dst").model
     assert loaded.config.unet.block_out_channels == widths
+    with pytest.raises(SystemExit):  # a seed with the other upgrade would do nothing: refused
+        upgrade_main(
+            [str(tmp_path / "src"), str(tmp_path / "x"), "--scaling-factor", "2", "--seed", "1"]
+        )
+    assert not (tmp_path / "x").exists()
     assert loaded.config.hint_geometry == old.config.hint_geometry
 
 

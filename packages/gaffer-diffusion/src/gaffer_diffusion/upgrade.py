@@ -122,13 +122,15 @@ def main(argv: list[str] | None = None) -> int:
         type=_channels,
         help="a new random UNet of these widths per level (e.g. 32,64,128,256)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the new UNet (default 0)")
+    parser.add_argument("--seed", type=int, help="seed of the new UNet (default 0)")
     args = parser.parse_args(argv)
+    if args.seed is not None and args.new_unet_channels is None:
+        parser.error("--seed seeds a new UNet: pass it with --new-unet-channels, or drop it")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     try:
         model = load_pretrained(args.src).model
         if args.new_unet_channels is not None:
-            upgraded = with_new_unet(model, args.new_unet_channels, seed=args.seed)
+            upgraded = with_new_unet(model, args.new_unet_channels, seed=args.seed or 0)
         else:
             upgraded = to_estimated_geometry(model, scaling_factor=args.scaling_factor)
         # the sampling the source suggests (1 DDIM step, mirror mean, 75% framing) carries over
