@@ -58,6 +58,7 @@ _EXPORTS: dict[str, str] = {
     "mean_light_direction": "stats",
     "orbit_w2c_blender": "poses",
     "procedural_envmap": "procedural",
+    "physical_envmap": "procedural_physical",
     "project_sh": "sh",
     "read_bundled_hdri": "bundled",
     "read_envmap": "io",
@@ -159,6 +160,7 @@ if TYPE_CHECKING:  # static re-exports for type checkers and IDEs
         orbit_w2c_blender,
     )
     from gaffer_envmap.procedural import procedural_envmap
+    from gaffer_envmap.procedural_physical import physical_envmap
     from gaffer_envmap.resample import resize_conservative, resize_conservative_torch
     from gaffer_envmap.rotate import rotate_to_camera
     from gaffer_envmap.sanitize import SanitizeReport, sanitize
@@ -236,6 +238,7 @@ __all__ = [
     "look_at_w2c_blender",
     "mean_light_direction",
     "orbit_w2c_blender",
+    "physical_envmap",
     "procedural_envmap",
     "project_sh",
     "read_bundled_hdri",

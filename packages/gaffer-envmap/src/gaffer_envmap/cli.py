@@ -196,6 +196,7 @@ def _cmd_augment(args: argparse.Namespace) -> int:
 
 def _cmd_procedural(args: argparse.Namespace) -> int:
     from gaffer_envmap.procedural import procedural_envmap
+    from gaffer_envmap.procedural_physical import physical_envmap
 
     if args.count < 1 or args.first < 0:
         raise GafferEnvmapError(
@@ -203,14 +204,16 @@ def _cmd_procedural(args: argparse.Namespace) -> int:
         )
     if args.height < 8:
         raise GafferEnvmapError(f"`--height` is {args.height}; pass 8 or more rows.")
-    check_output_dir("--out-dir", args.out_dir, files=("proc_*.exr",))
+    make, prefix = (
+        (physical_envmap, "phys") if args.family == "physical" else (procedural_envmap, "proc")
+    )
+    check_output_dir("--out-dir", args.out_dir, files=(f"{prefix}_*.exr",))
     out = Path(args.out_dir)
     with atomic_files(out) as stage:  # all maps or none: no partial output
         for seed in range(args.first, args.first + args.count):
-            write_envmap(stage / f"proc_{seed:04d}.exr", procedural_envmap(seed, args.height))
-    print(
-        f"wrote {args.count} procedural maps (seeds {args.first}..{args.first + args.count - 1}) to {out}"
-    )
+            write_envmap(stage / f"{prefix}_{seed:04d}.exr", make(seed, args.height))
+    last = args.first + args.count - 1
+    print(f"wrote {args.count} {args.family} maps (seeds {args.first}..{last}) to {out}")
     return 0
 
 
@@ -406,7 +409,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = sub.add_parser(
         "procedural",
-        help="random HDR skies with suns / soft lights (gaffer_envmap.procedural), one per seed",
+        help="random HDR lighting maps for training data, one per seed (--family vmf or physical)",
     )
     sp.add_argument(
         "--out-dir", required=True, help="folder for the proc_<seed>.exr maps (created)"
@@ -416,6 +419,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--count", type=int, default=60, help="number of maps (seeds first, first+1, ...)"
     )
     sp.add_argument("--height", type=int, default=128, help="rows (width = 2 x height)")
+    sp.add_argument(
+        "--family",
+        choices=("vmf", "physical"),
+        default="vmf",
+        help="'vmf' (default): sky gradients with soft emitters, proc_<seed>.exr "
+        "(gaffer_envmap.procedural); 'physical': Preetham skies with a sun, overcast skies and "
+        "studios, phys_<seed>.exr (gaffer_envmap.procedural_physical)",
+    )
     sp.set_defaults(func=_cmd_procedural)
 
     add_sky_parser(sub)
