@@ -70,17 +70,27 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    "name", ["neural-gaffer-paper", "tiny-smoke", "gaffer-tiny-stage5", "gaffer-tiny-wide"]
+    "name",
+    [
+        "neural-gaffer-paper",
+        "tiny-smoke",
+        "gaffer-tiny-stage5",
+        "gaffer-tiny-wide",
+        "gaffer-tiny-stage6",
+    ],
 )
 def test_shipped_configs_load(name: str) -> None:
     cfg = load_config(CONFIGS / f"{name}.json")
     if name == "neural-gaffer-paper":
         assert cfg.model.init == "zero123-xl" and cfg.train.max_steps == 80_000
         assert cfg.train.batch_size * cfg.data.targets_per_sample * 8 == 1024
-    if name in ("gaffer-tiny-stage5", "gaffer-tiny-wide"):
-        # gaffer-tiny 0.6 and the wide experiment: the one-step sampler trained on its score
+    if name in ("gaffer-tiny-stage5", "gaffer-tiny-wide", "gaffer-tiny-stage6"):
+        # gaffer-tiny 0.6, the wide experiment and stage 6: the one-step sampler trained on its score
         assert cfg.train.loss_space == "display_object" and cfg.train.timestep_range == (999, 999)
         assert cfg.model.init == "pretrained" and cfg.train.residual_loss_floor is None
+    if name == "gaffer-tiny-stage6":
+        # stage 4's renders plus the two sets lit by the physical maps
+        assert [p.name for p in cfg.data.extra_roots] == ["render_train09", "render_train09b"]
 
 
 def test_object_fraction_defaults_to_the_whole_render_and_is_validated() -> None:
