@@ -69,6 +69,9 @@ DATA_AT_COMMIT = {
     "demo_example_gaffer-tiny-0.6.json": (
         "packages/gaffer-diffusion/src/gaffer_diffusion/data/example/dataset.json"
     ),
+    "demo_example_gaffer-tiny-0.7.json": (
+        "packages/gaffer-diffusion/src/gaffer_diffusion/data/example/dataset.json"
+    ),
 }
 # Training-run checkpoints scored during training and not kept: no weights file to hash.
 UNKEPT_CHECKPOINTS = {

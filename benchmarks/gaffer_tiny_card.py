@@ -29,11 +29,15 @@ CARD = (
 )
 
 VALIDATION_SPLIT = "render_val05"
-TEST_SPLIT = "render_test07"
-SHIPPED_LABEL = "gaffer-tiny-0.6"
-# earlier releases' own test splits (0.5.1's and 0.5's), each scored once for its release; kept in
-# the card's history, table name -> split
-EARLIER_TEST_SPLITS = {"test06": "render_test06", "test05": "render_test05"}
+TEST_SPLIT = "render_test08"
+SHIPPED_LABEL = "gaffer-tiny-0.7"
+# earlier releases' own test splits (0.6's, 0.5.1's and 0.5's), each scored once for its release;
+# kept in the card's history, table name -> split
+EARLIER_TEST_SPLITS = {
+    "test07": "render_test07",
+    "test06": "render_test06",
+    "test05": "render_test05",
+}
 
 
 @dataclass(frozen=True)

@@ -188,10 +188,10 @@ NOT_MEASURED: dict[str, dict[str, str]] = {
     },
 }
 
-# Release versions of the shipped models (gaffer-tiny 0.2-0.6, gaffer-normals 1.0-1.1; their
+# Release versions of the shipped models (gaffer-tiny 0.2-0.7, gaffer-normals 1.0-1.1; their
 # manifests and cards): prose names them bare ("against 0.4"), so a bare decimal equal to one, with no
 # unit after it, is read as a version. A measured value that happens to equal one goes unchecked.
-RELEASE_VERSIONS = frozenset({"0.2", "0.3", "0.4", "0.5", "0.6", "1.0", "1.1"})
+RELEASE_VERSIONS = frozenset({"0.2", "0.3", "0.4", "0.5", "0.6", "0.7", "1.0", "1.1"})
 
 
 def pages(root: Path = ROOT) -> list[Path]:

@@ -121,7 +121,7 @@ def test_problems_names_what_is_missing(backfill: ModuleType) -> None:
 
 
 def test_a_result_of_the_shipped_example_names_its_manifest(backfill: ModuleType) -> None:
-    name = "demo_example_gaffer-tiny-0.6.json"
+    name = "demo_example_gaffer-tiny-0.7.json"
     doc = {"machine": {"git_commit": "abc1234", "cpu_model": "some CPU"}}
     doc["model"] = {"weights_sha256": {"unet.safetensors": "0" * 64}}
     assert backfill.problems(name, doc) == [
