@@ -244,6 +244,9 @@ def tables() -> dict[str, str]:
         "validation": summary_table(VALIDATION_SPLIT),
         "test": summary_table(TEST_SPLIT),
         "test-by-hdri": by_hdri_table(TEST_SPLIT, SHIPPED_LABEL),
+        "test-by-hdri-06": by_hdri_table(TEST_SPLIT, "gaffer-tiny-0.6"),
+        # 0.6 by map on its own test split: where it gained least is what 0.7's data aimed at
+        "test07-by-hdri": by_hdri_table("render_test07", "gaffer-tiny-0.6"),
         **{name: summary_table(split) for name, split in EARLIER_TEST_SPLITS.items()},
     }
 
