@@ -373,3 +373,60 @@ def test_normals_command_refuses_bad_arguments_in_one_line(tmp_path: Path, capsy
     )
     assert "--estimator" in capsys.readouterr().err
     assert not (tmp_path / "n.png").exists()
+
+
+def _geometry_views(n: int, lit: int, size: int = 32, seed: int = 0):
+    from gaffer_diffusion.training.normals import GeometryViews
+
+    g = torch.Generator().manual_seed(seed)
+    normals = torch.randn(n, 3, size, size, generator=g)
+    return GeometryViews(
+        images=torch.randint(0, 256, (n, lit, 3, size, size), generator=g, dtype=torch.uint8),
+        masks=torch.ones(n, 1, size, size),
+        normals_cam=normals / normals.norm(dim=1, keepdim=True),
+        object_ids=tuple(f"o{seed}_{i}" for i in range(n)),
+    )
+
+
+def test_concat_views_pools_folders_and_keeps_the_fewest_renders_per_view() -> None:
+    from gaffer_diffusion.training.normals import concat_views
+
+    a, b = _geometry_views(3, lit=9, seed=1), _geometry_views(2, lit=5, seed=2)
+    both = concat_views([a, b])
+    assert both.images.shape == (5, 5, 3, 32, 32) and both.object_ids == a.object_ids + b.object_ids
+    assert torch.equal(both.images[:3], a.images[:, :5]) and torch.equal(both.images[3:], b.images)
+    assert torch.equal(both.normals_cam[3:], b.normals_cam)
+    assert concat_views([a]) is a
+    with pytest.raises(ConfigError, match="at least one"):
+        concat_views([])
+    with pytest.raises(ConfigError, match="differ in size"):
+        concat_views([a, _geometry_views(1, lit=5, size=16)])
+
+
+def test_train_normal_estimator_continues_from_an_estimator() -> None:
+    from gaffer_diffusion.geometry.estimator import NormalEstimator, NormalEstimatorConfig
+    from gaffer_diffusion.training.normals import NormalTrainConfig, train_normal_estimator
+
+    shapes = NormalEstimatorConfig(resolution=32, block_out_channels=(8, 8, 8, 8))
+    torch.manual_seed(0)
+    init = NormalEstimator(shapes).eval()
+    torch.nn.init.normal_(init.unet.conv_out.weight, std=0.05)  # not the dome any more
+    views = _geometry_views(4, lit=2)
+    img, mask = views.images[:, 0].float() / 255.0, views.masks
+    config = NormalTrainConfig(
+        estimator=shapes, max_steps=1, batch_size=2, lr=1e-9, seed=0, threads=1
+    )
+    with torch.no_grad():
+        before = init(img, mask)
+    cont, stats = train_normal_estimator(views, config, init=init)
+    scratch, _ = train_normal_estimator(views, config)
+    with torch.no_grad():
+        # one step at a negligible learning rate: the continued estimator is still `init`, the
+        # fresh one is still the dome
+        assert torch.allclose(cont(img, mask), before, atol=1e-4)
+        assert not torch.allclose(scratch(img, mask), before, atol=1e-2)
+        assert torch.equal(init(img, mask), before)  # `init` itself is not trained
+    assert stats["steps"] == 1.0
+    other = NormalTrainConfig(estimator=NormalEstimatorConfig(resolution=32), max_steps=1)
+    with pytest.raises(ConfigError, match="same shapes"):
+        train_normal_estimator(views, other, init=init)

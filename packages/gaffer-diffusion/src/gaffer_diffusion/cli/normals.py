@@ -25,7 +25,7 @@ def _validate_normals(args: argparse.Namespace) -> None:
     for written in (args.out, *siblings):  # none of what it writes may replace an input
         checks.not_an_input("--out", written, [("IMAGE", args.image), ("--mask", args.mask)])
     if args.out.suffix.lower() != ".png":
-        raise checks.ConfigError(f"`--out` is {str(args.out)!r}; expected a .png file.")
+        raise ConfigError(f"`--out` is {str(args.out)!r}; expected a .png file.")
 
 
 def _normals(args: argparse.Namespace) -> int:
@@ -85,7 +85,7 @@ def _check_replaceable_estimator(args: argparse.Namespace) -> None:
     anything but an earlier estimator, and one that is or holds `--data` / `--val` (so that
     nothing already written is lost)."""
     out = args.out.absolute().resolve()
-    for flag, src in (("--data", args.data), ("--val", args.val)):
+    for flag, src in [*(("--data", d) for d in args.data), ("--val", args.val)]:
         if src is not None and (
             out == src.absolute().resolve() or out in src.absolute().resolve().parents
         ):
@@ -102,7 +102,11 @@ def _check_replaceable_estimator(args: argparse.Namespace) -> None:
 
 
 def _train_normals(args: argparse.Namespace) -> int:
-    checks.need_dir("--data", args.data, "a gaffer-data render folder (with normal passes)")
+    for data in args.data:
+        checks.need_dir("--data", data, "a gaffer-data render folder (with normal passes)")
+    if args.init is not None:
+        checks.need_dir("--init", args.init, "an estimator folder (gaffer_normals.json, unet/)")
+    checks.finite("--lr", args.lr, lo=1e-7, hi=1.0)
     if args.val is not None:
         checks.need_dir("--val", args.val, "a gaffer-data render folder (with normal passes)")
     checks.replaceable_dir("--out", args.out)
@@ -118,24 +122,40 @@ def _train_normals(args: argparse.Namespace) -> int:
     import time
 
     from gaffer_diffusion._atomic_dir import atomic_dir
+    from gaffer_diffusion.geometry.estimator import NormalEstimatorConfig, load_normal_estimator
     from gaffer_diffusion.training.normals import (
         NormalTrainConfig,
         angular_errors,
+        concat_views,
         load_geometry_views,
         train_normal_estimator,
     )
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     t0 = time.perf_counter()
-    train = load_geometry_views(args.data)
+    init = None if args.init is None else load_normal_estimator(args.init)
+    train = concat_views([load_geometry_views(data) for data in args.data])
     print(f"read {train.images.shape[0]} training views in {time.perf_counter() - t0:.0f} s")
     config = NormalTrainConfig(
-        max_seconds=args.minutes * 60.0, max_steps=args.steps, seed=args.seed, threads=args.threads
+        estimator=NormalEstimatorConfig() if init is None else init.config,
+        max_seconds=args.minutes * 60.0,
+        max_steps=args.steps,
+        lr=args.lr,
+        seed=args.seed,
+        threads=args.threads,
     )
-    est, stats = train_normal_estimator(train, config)
-    extra: dict[str, object] = {
-        "training": {**stats, "data": str(args.data), "seed": args.seed, "max_steps": args.steps}
+    est, stats = train_normal_estimator(train, config, init=init)
+    data = str(args.data[0]) if len(args.data) == 1 else [str(d) for d in args.data]
+    training: dict[str, object] = {
+        **stats,
+        "data": data,
+        "seed": args.seed,
+        "max_steps": args.steps,
+        "lr": args.lr,
     }
+    if args.init is not None:
+        training["init"] = str(args.init)
+    extra: dict[str, object] = {"training": training}
     if args.val is not None:
         errors = angular_errors(est, load_geometry_views(args.val))
         extra["validation"] = {

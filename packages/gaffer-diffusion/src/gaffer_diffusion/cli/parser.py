@@ -442,7 +442,21 @@ def _add_normals_commands(sub: Any) -> None:
         "train-normals",
         help="train the normal estimator on gaffer-data renders' normal passes (extra [train])",
     )
-    tn.add_argument("--data", type=Path, required=True, help="training renders")
+    tn.add_argument(
+        "--data",
+        type=Path,
+        required=True,
+        action="append",
+        help="training renders (repeat for several folders; their views are pooled)",
+    )
+    tn.add_argument(
+        "--init",
+        type=Path,
+        help="an estimator folder to continue from (its shapes are kept); default: from scratch",
+    )
+    tn.add_argument(
+        "--lr", type=float, default=2e-3, help="peak learning rate (2e-3; less to fine-tune)"
+    )
     tn.add_argument("--val", type=Path, help="held-out renders: angular error vs the dome")
     tn.add_argument("--out", type=Path, required=True, help="estimator folder to write")
     tn.add_argument("--minutes", type=float, default=15.0, help="training time budget (15)")

@@ -13,6 +13,7 @@ beside it) on held-out renders: the mean angle in degrees over the object's pixe
 import logging
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +45,7 @@ __all__ = [
     "GeometryViews",
     "NormalTrainConfig",
     "angular_errors",
+    "concat_views",
     "load_geometry_views",
     "mean_angular_error_deg",
     "train_normal_estimator",
@@ -125,6 +127,30 @@ def load_geometry_views(
     )
 
 
+def concat_views(parts: Sequence[GeometryViews]) -> GeometryViews:
+    """The views of several render folders pooled in one set (same size). Each view keeps as many
+    renders as the folder with the fewest per view has (e.g. 4 lightings + the area light when one
+    folder was rendered with `--lightings 4` and another with 8): `_batch` draws one per view.
+
+    Raises:
+        ConfigError: no parts, or parts of different sizes.
+    """
+    if not parts:
+        raise ConfigError("no training views: pass at least one render folder.")
+    sizes = {tuple(p.images.shape[-2:]) for p in parts}
+    if len(sizes) > 1:
+        raise ConfigError(f"the render folders' views differ in size ({sorted(sizes)}).")
+    if len(parts) == 1:
+        return parts[0]
+    n_lit = min(int(p.images.shape[1]) for p in parts)
+    return GeometryViews(
+        images=torch.cat([p.images[:, :n_lit] for p in parts]),
+        masks=torch.cat([p.masks for p in parts]),
+        normals_cam=torch.cat([p.normals_cam for p in parts]),
+        object_ids=tuple(oid for p in parts for oid in p.object_ids),
+    )
+
+
 @dataclass(frozen=True, kw_only=True)
 class NormalTrainConfig:
     """How the estimator is trained (defaults: the shipped gaffer-normals recipe).
@@ -181,14 +207,27 @@ def _batch(
 
 
 def train_normal_estimator(
-    train: GeometryViews, config: NormalTrainConfig
+    train: GeometryViews, config: NormalTrainConfig, *, init: NormalEstimator | None = None
 ) -> tuple[NormalEstimator, dict[str, float]]:
-    """Train from scratch on `train`; returns the estimator (eval mode) and `{steps, seconds, loss}`."""
+    """Train on `train` from scratch, or on from `init` (a copy is trained; its shapes must be
+    `config.estimator`); returns the estimator (eval mode) and `{steps, seconds, loss}`.
+
+    Raises:
+        ConfigError: `init`'s shapes differ from `config.estimator`.
+    """
+    if init is not None and init.config != config.estimator:
+        raise ConfigError(
+            f"the estimator to continue from has shapes {init.config}, the config asks for "
+            f"{config.estimator}; pass the same shapes."
+        )
     if config.threads > 0:
         torch.set_num_threads(config.threads)
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)
-    est = NormalEstimator(config.estimator).train()
+    est = NormalEstimator(config.estimator)
+    if init is not None:
+        est.load_state_dict(init.state_dict())
+    est = est.train()
     opt = torch.optim.AdamW(est.parameters(), lr=config.lr, weight_decay=1e-4)
 
     def lr_at(step: int) -> float:
