@@ -1,4 +1,8 @@
-"""Procedural HDR environment maps (`gaffer_envmap.procedural.procedural_envmap`)."""
+"""Procedural HDR environment maps (`gaffer_envmap.procedural.procedural_envmap`; the seeding, argument and export tests
+also cover `gaffer_envmap.procedural_physical.physical_envmap`)."""
+
+import importlib
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -6,16 +10,18 @@ import pytest
 import gaffer_envmap
 from gaffer_envmap import EnvironmentMap
 from gaffer_envmap.procedural import procedural_envmap
+from gaffer_envmap.procedural_physical import physical_envmap
 
 SEEDS = range(48)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
-def test_same_seed_same_map_and_different_seeds_differ() -> None:
-    a = procedural_envmap(7, height=32)
-    b = procedural_envmap(7, height=32)
+@pytest.mark.parametrize("make", [procedural_envmap, physical_envmap])
+def test_same_seed_same_map_and_different_seeds_differ(make: Callable[..., EnvironmentMap]) -> None:
+    a = make(7, height=32)
+    b = make(7, height=32)
     np.testing.assert_array_equal(a.radiance_linear, b.radiance_linear)
-    maps = [procedural_envmap(s, height=32).radiance_linear for s in range(8)]
+    maps = [make(s, height=32).radiance_linear for s in range(8)]
     for i in range(len(maps)):
         for j in range(i + 1, len(maps)):
             assert not np.allclose(maps[i], maps[j], rtol=1e-3), (i, j)
@@ -48,17 +54,22 @@ def test_radiance_is_finite_non_negative_hdr_with_a_plausible_mean() -> None:
     assert sky_above_ground >= 0.9 * len(SEEDS)
 
 
-def test_bad_arguments_raise_value_error() -> None:
+@pytest.mark.parametrize("make", [procedural_envmap, physical_envmap])
+def test_bad_arguments_raise_value_error(make: Callable[..., EnvironmentMap]) -> None:
     with pytest.raises(ValueError, match="seed"):
-        procedural_envmap(-1)
+        make(-1)
     with pytest.raises(ValueError, match="height"):
-        procedural_envmap(0, height=7)
+        make(0, height=7)
     with pytest.raises(ValueError, match="height"):
-        procedural_envmap(0, height=0)
-    procedural_envmap(0, height=8)  # the smallest allowed
+        make(0, height=0)
+    make(0, height=8)  # the smallest allowed
 
 
-def test_exported_from_the_package() -> None:
-    assert gaffer_envmap.procedural_envmap is procedural_envmap
-    assert "procedural_envmap" in gaffer_envmap.__all__
-    assert "procedural_envmap" in dir(gaffer_envmap)
+@pytest.mark.parametrize("name", ["procedural_envmap", "physical_envmap"])
+def test_exported_from_the_package(name: str) -> None:
+    module = {"procedural_envmap": "procedural", "physical_envmap": "procedural_physical"}[name]
+    assert getattr(gaffer_envmap, name) is getattr(
+        importlib.import_module(f"gaffer_envmap.{module}"), name
+    )
+    assert name in gaffer_envmap.__all__
+    assert name in dir(gaffer_envmap)

@@ -1,27 +1,16 @@
-"""Random physically based maps (`gaffer_envmap.procedural_physical.physical_envmap`)."""
+"""Random physically based maps (`gaffer_envmap.procedural_physical.physical_envmap`); its seeding,
+arguments and export are tested beside `procedural_envmap`'s in test_procedural.py."""
 
 import collections
 
 import numpy as np
-import pytest
 
-import gaffer_envmap
 from gaffer_envmap.cli import main
 from gaffer_envmap.io import read_envmap
 from gaffer_envmap.procedural_physical import PHYSICAL_FAMILIES, physical_envmap
 
 SEEDS = range(40)
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
-
-
-def test_same_seed_same_map_and_different_seeds_differ() -> None:
-    a = physical_envmap(5, height=16)
-    b = physical_envmap(5, height=16)
-    np.testing.assert_array_equal(a.radiance_linear, b.radiance_linear)
-    maps = [physical_envmap(s, height=16).radiance_linear for s in range(6)]
-    for i in range(len(maps)):
-        for j in range(i + 1, len(maps)):
-            assert not np.allclose(maps[i], maps[j], rtol=1e-3), (i, j)
 
 
 def test_every_family_is_drawn_and_each_map_is_finite_hdr_in_the_exposure_range() -> None:
@@ -47,19 +36,6 @@ def test_every_family_is_drawn_and_each_map_is_finite_hdr_in_the_exposure_range(
     assert set(families) == set(PHYSICAL_FAMILIES), families
     assert families["preetham"] > families["cie-overcast"], families
     assert suns > 0, "no sunny sky among the seeds"
-
-
-def test_bad_arguments_raise_value_error() -> None:
-    with pytest.raises(ValueError, match="seed"):
-        physical_envmap(-1)
-    with pytest.raises(ValueError, match="height"):
-        physical_envmap(0, height=7)
-    physical_envmap(0, height=8)  # the smallest allowed
-
-
-def test_exported_from_the_package() -> None:
-    assert gaffer_envmap.physical_envmap is physical_envmap
-    assert "physical_envmap" in gaffer_envmap.__all__
 
 
 def test_cli_writes_the_physical_family(tmp_path) -> None:
