@@ -21,6 +21,11 @@ results/nerf_cli_defaults_val.json, with the relight also run with `--shared-noi
 preset's noise is chosen there: the best mean object PSNR with no object below its unrelit field);
 the seed-61 objects are the test set, scored once with the chosen defaults.
 
+`--validation --stage1-lengths` runs the validation objects with the tiny preset's Stage 1 at 100
+(its default), 400, 800 and 1,600 iterations (`--stage1-iterations`), written to
+results/nerf_cli_defaults_stage1_val.json: whether a field that falls short of its 2D targets on the
+training views (the `train_views` check) would gain from a longer Stage 1.
+
 `--wide` scores the same defaults once more on a larger fresh sample (`--procedural 8 --seed 71`,
 no choice made there), written to results/nerf_cli_defaults_wide.json: two objects say little about
 how often the defaults gain, since a single photo leaves the relit exposure a guess per object.
@@ -46,6 +51,8 @@ OBJECT_SEED = 61
 VALIDATION_SEED, VALIDATION_OBJECTS = 62, 3
 """`--validation`: other unseen objects, where the defaults' fixes are chosen; the seed-61 objects
 are the test set, scored once with the chosen defaults."""
+STAGE1_LENGTHS = (400, 800, 1600)
+"""`--stage1-lengths`: Stage-1 iterations tried beside the tiny preset's 100."""
 WIDE_SEED, WIDE_OBJECTS = 71, 8
 """`--wide`: a larger fresh test sample (seed unused by any recipe, test or benchmark), scored once."""
 POOL = ("city", "courtyard")
@@ -141,11 +148,14 @@ def _stage1_targets_score(obj: Path, relit: Path) -> dict[str, float]:
 
 
 def main() -> None:
-    own = ("--paper", "--validation", "--wide")
+    own = ("--paper", "--validation", "--wide", "--stage1-lengths")
     args = common.parse_args(__doc__ or "", [a for a in sys.argv[1:] if a not in own])
     paper = "--paper" in sys.argv[1:]
     validation = "--validation" in sys.argv[1:]
     wide = "--wide" in sys.argv[1:]
+    lengths = "--stage1-lengths" in sys.argv[1:]
+    if lengths and not validation:
+        raise SystemExit("--stage1-lengths is a validation sweep: pass it with --validation.")
     if validation and wide:
         raise SystemExit("--validation and --wide are two different samples: pass one of them.")
     seed, count = (
@@ -160,7 +170,7 @@ def main() -> None:
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     meta = common.machine(threads)
     # the validation objects are their own result file; --paper adds a variant to either
-    name_out = NAME + suffix
+    name_out = NAME + ("_stage1_val" if lengths else suffix)
     root = common.RUNS / f"{NAME}{suffix}_data"
     t0 = time.perf_counter()
     data_root = _renders(root, env, seed, count)
@@ -170,7 +180,9 @@ def main() -> None:
     work = root / "work"
     shutil.rmtree(work, ignore_errors=True)
     variants: list[tuple[str, list[str]]] = [("default", [])]
-    if validation:  # the choice of the tiny preset's noise is made here
+    if lengths:  # the tiny preset's Stage-1 length, on the validation objects only
+        variants += [(f"stage1_{n}", ["--stage1-iterations", str(n)]) for n in STAGE1_LENGTHS]
+    elif validation:  # the choice of the tiny preset's noise is made here
         variants.append(("shared_noise", ["--shared-noise"]))
     if paper:
         variants.append(("paper", ["--preset", "paper"]))
