@@ -217,6 +217,17 @@ def data_provenance(root: Path, manifest: str = "dataset.json") -> dict[str, Any
     }
 
 
+def model_result_header(name: str, doc: str | None, data_root: Path, **data: Any) -> dict[str, Any]:
+    """The opening keys of a result that scores the shipped model on a render folder: its name, the
+    script's first docstring paragraph, the model's and the data's provenance (plus `data`'s keys)."""
+    return {
+        "name": name,
+        "description": (doc or "").split("\n\n")[0],
+        "model": model_provenance(),
+        "data": {**data_provenance(data_root), **data},
+    }
+
+
 def short_device(meta: dict[str, Any]) -> str:
     """One line for plot titles."""
     gpu = f", GPU {meta['gpu']}" if meta.get("cuda") == "available" else ", no GPU"

@@ -252,13 +252,9 @@ def main() -> None:
     summary["model"]["object_psnr_calibrated"] = round(float(np.mean(calibrated)), 3)
     summary["model"]["calibration_abs_stops_mean"] = round(float(np.mean(np.abs(y - predicted))), 3)
     payload = {
-        "name": name,
-        "description": (__doc__ or "").split("\n\n")[0],
-        "model": common.model_provenance(),
-        "data": {
-            **common.data_provenance(split),
-            "split": f"{split.name} (validation; every pair)",
-        },
+        **common.model_result_header(
+            name, __doc__, split, split=f"{split.name} (validation; every pair)"
+        ),
         "evaluate_command": (run / "DONE").read_text().strip(),
         "pairs": len(rows),
         "summary": summary,

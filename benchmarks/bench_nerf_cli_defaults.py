@@ -232,19 +232,18 @@ def main() -> None:
             )
         rows.append(row)
     payload = {
-        "name": name_out,
-        "description": (__doc__ or "").split("\n\n")[0],
-        "model": common.model_provenance(),
-        "data": {
-            **common.data_provenance(data_root),
-            "recipe": f"gaffer-data recipe --procedural {count} --seed {seed}",
-            "render": f"{RESOLUTION} px, {SAMPLES} spp + denoiser, {TRAIN_VIEWS} train + {TEST_VIEWS} test views, pool {list(POOL)}, seed {seed}",
-            "split": "validation (choices are made here)"
+        **common.model_result_header(
+            name_out,
+            __doc__,
+            data_root,
+            recipe=f"gaffer-data recipe --procedural {count} --seed {seed}",
+            render=f"{RESOLUTION} px, {SAMPLES} spp + denoiser, {TRAIN_VIEWS} train + {TEST_VIEWS} test views, pool {list(POOL)}, seed {seed}",
+            split="validation (choices are made here)"
             if validation
             else "test, wider fresh sample (scored once)"
             if wide
             else "test (scored once)",
-        },
+        ),
         "threads": f"OMP_NUM_THREADS={threads} (every command)",
         "render_or_cache_seconds": round(render_s, 2),
         "objects": rows,
