@@ -42,9 +42,11 @@ import _common as common
 import numpy as np
 import torch
 
+from gaffer_diffusion.models.pixel import LUMA_WEIGHTS
+
 NAME = "exposure_gap"
 DEFAULT_SPLIT = common.RESULTS.parent.parent / "packages/gaffer-diffusion/runs/data/render_val05"
-LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
+LUMA = np.array(LUMA_WEIGHTS, np.float32)
 FOLDS = 4
 RIDGE = 1e-3
 
@@ -88,20 +90,22 @@ def _predictions(split: Path, threads: int, name: str) -> Path:
     return out
 
 
+def _mean_luma(image: np.ndarray, mask: np.ndarray) -> float:
+    """Mean Rec. 709 luminance of `image` (display values) weighted by `mask`."""
+    mean = (image * mask[..., None]).sum((0, 1)) / max(float(mask.sum()), 1e-6)
+    return float(mean @ LUMA)
+
+
 def _scores(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> PairScores:
     from gaffer_diffusion.metrics import channel_align, masked_psnr
 
     p = torch.from_numpy(pred).permute(2, 0, 1)[None]
     t = torch.from_numpy(truth).permute(2, 0, 1)[None]
     m = torch.from_numpy(mask.astype(np.float32))[None, None]
-    w = mask[..., None]
-    lum_p = float(((pred * w).sum((0, 1)) / w.sum()) @ LUMA)
-    lum_t = float(((truth * w).sum((0, 1)) / w.sum()) @ LUMA)
-    gain = lum_t / max(lum_p, 1e-6)
-    exposed = (p * gain).clamp(0, 1)
+    gain = _mean_luma(truth, mask) / max(_mean_luma(pred, mask), 1e-6)
     return PairScores(
         raw=float(masked_psnr(p, t, m)[0]),
-        exposure=float(masked_psnr(exposed, t, m)[0]),
+        exposure=float(masked_psnr((p * gain).clamp(0, 1), t, m)[0]),
         aligned=float(masked_psnr(channel_align(p, t, m), t, m)[0]),
         level_error_stops=math.log2(max(gain, 1e-6)),
     )
@@ -109,20 +113,21 @@ def _scores(pred: np.ndarray, truth: np.ndarray, mask: np.ndarray) -> PairScores
 
 def _level(image: np.ndarray, mask: np.ndarray) -> float:
     """log2 of the mean luminance over the mask (display values)."""
-    mean = (image * mask[..., None]).sum((0, 1)) / max(float(mask.sum()), 1e-6)
-    return math.log2(max(float(mean @ LUMA), 1e-4))
+    return math.log2(max(_mean_luma(image, mask), 1e-4))
 
 
 def _map_features(path: Path, cache: dict[Path, list[float]]) -> list[float]:
     """log2 of the map's solid-angle mean, peak and upper-hemisphere mean luminance."""
     if path not in cache:
         from gaffer_envmap import read_envmap
+        from gaffer_envmap.conventions import row_solid_angle
 
-        lum = np.asarray(read_envmap(path).radiance_linear, np.float32) @ LUMA
-        h = lum.shape[0]
-        w = np.sin((np.arange(h) + 0.5) / h * np.pi)[:, None]
-        mean = float((lum * w).sum() / (w.sum() * lum.shape[1]))
-        upper = float((lum[: h // 2] * w[: h // 2]).sum() / (w[: h // 2].sum() * lum.shape[1]))
+        env = read_envmap(path)
+        lum = np.asarray(env.radiance_linear, np.float64) @ LUMA
+        omega = row_solid_angle(env.height, env.width, env.alignment)  # [He], sums to 4 pi
+        top = env.height // 2
+        mean = float(omega @ lum.sum(1) / (4 * np.pi))
+        upper = float(omega[:top] @ lum[:top].sum(1) / (omega[:top].sum() * env.width))
         cache[path] = [math.log2(mean + 1e-6), math.log2(float(lum.max()) + 1e-6),
                        math.log2(upper + 1e-6)]  # fmt: skip
     return cache[path]
