@@ -22,6 +22,9 @@ from gaffer_diffusion.configs import get_preset
 from gaffer_diffusion.hints import (
     HINT_CHANNELS,
     PREFILTER_GRID,
+    delit_ratio,
+    diffuse_radiance,
+    input_radiance_fit,
     prefiltered_maps,
     radiance_from_maps,
     relighting_hints,
@@ -163,6 +166,40 @@ def test_prefiltered_maps_of_a_uniform_sky_are_its_radiance(level: float) -> Non
     # irradiance / pi of a uniform white sky of radiance L is L; normalised Phong lobes give L
     torch.testing.assert_close(maps[:, :3], torch.full_like(maps[:, :3], level), rtol=0.02, atol=0)
     torch.testing.assert_close(maps[:, 3:], torch.full_like(maps[:, 3:], level), rtol=0.02, atol=0)
+
+
+def test_diffuse_radiance_is_the_hints_diffuse_channel_before_tone_mapping() -> None:
+    mask = _disc()
+    normals = silhouette_normals(mask)
+    ldr, hdr = _maps(_light_at(slice(4, 8), slice(20, 24)))
+    linear = diffuse_radiance(normals, ldr, hdr)
+    hint = relighting_hints(mask, ldr, hdr, normals=normals)[:, :3]
+    inside = (mask > 0.5).expand_as(linear)
+    # the hint is (x / (1 + x))^(1/2.2) mapped to [-1, 1] inside the mask
+    toned = (linear / (1 + linear)).pow(1 / 2.2) * 2 - 1
+    torch.testing.assert_close(hint[inside], toned[inside], rtol=0, atol=1e-5)
+    # a sun off to one side lights the facets that face it: not a constant
+    assert float(linear[inside].max()) > 2 * float(linear[inside].min())
+
+
+def test_input_radiance_fit_recovers_radiance_quadratic_in_the_normal() -> None:
+    from gaffer_diffusion.images import linear_to_srgb
+
+    mask = _disc()
+    normals = silhouette_normals(mask)
+    x, y, z = normals[:, 0:1], normals[:, 1:2], normals[:, 2:3]
+    # an order-2 lighting (a light from upper right and its ambient) on a reddish albedo
+    shading = 0.25 + 0.15 * x + 0.1 * y + 0.05 * z + 0.05 * x * y
+    albedo = torch.tensor([0.9, 0.5, 0.3]).view(1, 3, 1, 1)
+    radiance = albedo * shading
+    image = torch.where(mask > 0.5, linear_to_srgb(radiance), torch.ones_like(radiance))
+    fit = input_radiance_fit(image, mask, normals)
+    inside = (mask > 0.5).expand_as(fit)
+    # 8-bit-free input, so only the small ridge separates the fit from the truth
+    torch.testing.assert_close(fit[inside], radiance[inside], rtol=0.02, atol=2e-3)
+    # the de-lit ratio of the input's own lighting is zero: nothing to change
+    ratio = delit_ratio(image, mask, normals, shading.expand_as(fit) * albedo)
+    assert float(ratio.abs().max()) < 0.01
 
 
 def test_prefiltered_maps_keep_colour_and_follow_the_light() -> None:

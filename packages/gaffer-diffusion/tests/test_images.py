@@ -122,3 +122,15 @@ def test_saved_predictions_and_the_validation_sheet_are_written_atomically(
         _write_sheet(sheet, valset, pred)
     after = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     assert after == before
+
+
+def test_srgb_transfer_round_trips_and_clips() -> None:
+    from gaffer_diffusion.images import linear_to_srgb, srgb_to_linear
+
+    x = torch.linspace(0.0, 1.0, 257)
+    torch.testing.assert_close(linear_to_srgb(srgb_to_linear(x)), x, rtol=0, atol=1e-5)
+    # IEC 61966-2-1 reference points: the linear segment and mid grey
+    assert abs(float(srgb_to_linear(torch.tensor(0.04))) - 0.04 / 12.92) < 1e-7
+    assert abs(float(srgb_to_linear(torch.tensor(0.5))) - 0.21404) < 1e-4
+    assert float(srgb_to_linear(torch.tensor(1.5))) == 1.0
+    assert float(linear_to_srgb(torch.tensor(-0.2))) == 0.0

@@ -37,13 +37,17 @@ import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion.images import srgb_to_linear
+
 __all__ = [
     "ESTIMATED_HINT_CHANNELS",
     "HINT_CHANNELS",
     "PHONG_EXPONENTS",
     "HintGeometry",
     "delit_ratio",
+    "diffuse_radiance",
     "hints_at",
+    "input_radiance_fit",
     "prefiltered_maps",
     "radiance_from_maps",
     "relighting_hints",
@@ -233,11 +237,6 @@ def _lookup(maps: Float[Tensor, "B C P P"], dirs: Float[Tensor, "B 3 H W"]) -> T
     return F.grid_sample(padded, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
-def _srgb_to_linear(x: Tensor) -> Tensor:
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
-
-
 def _quadratic_basis(n: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 9 H W"]:
     """A basis of the polynomials of degree <= 2 in the normal: the span of order-2 real SH (a
     least-squares fit in it equals a fit in SH, whatever the constants)."""
@@ -246,27 +245,25 @@ def _quadratic_basis(n: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 9 H W"]:
     return torch.stack([one, x, y, z, x * y, y * z, x * z, x * x - y * y, 3 * z * z - 1], dim=1)
 
 
-def delit_ratio(
+def input_radiance_fit(
     image: Float[Tensor, "B 3 H W"],
     mask: Float[Tensor, "B 1 H W"],
     normals: Float[Tensor, "B 3 H W"],
-    diffuse_target: Float[Tensor, "B 3 H W"],
 ) -> Float[Tensor, "B 3 H W"]:
-    """`log(diffuse_target) - log(L_input(n))` / 4, clipped to [-1, 1], zero outside the mask.
+    """`L_input(n)`: the input's linear radiance as an order-2 SH function of its normals, per channel.
 
-    `L_input` is the least-squares order-2 SH fit, per channel, of the input's linear radiance over
-    its unsaturated object pixels as a function of their normals (a small ridge keeps an object that
-    shows few normals well posed); it is floored at 5% of its mean so the log stays finite.
+    A least-squares fit over the unsaturated object pixels (a small ridge keeps an object that shows
+    few normals well posed), floored at 5% of its mean over the mask so logs and ratios of it stay
+    finite. For a diffuse object of one albedo it is albedo x the input light's irradiance / pi
+    (Ramamoorthi & Hanrahan 2001), what `delit_ratio` divides the target's shading by.
 
     Args:
         image: the input in display sRGB, [0, 1], on white.
         mask: its alpha.
         normals: camera-frame unit normals.
-        diffuse_target: irradiance / pi of the target light at each pixel (linear radiance of a white
-            Lambertian surface).
     """
     b = image.shape[0]
-    lin = _srgb_to_linear(image.float())  # [B, 3, H, W]
+    lin = srgb_to_linear(image.float())  # [B, 3, H, W]
     basis = _quadratic_basis(normals.float())  # [B, 9, H, W]
     inside = mask > 0.5
     weight = (inside & (image.amax(dim=1, keepdim=True) < 0.98)).float().flatten(1)  # [B, P]
@@ -281,9 +278,41 @@ def delit_ratio(
     mean = (fit * insidef).sum(dim=(2, 3), keepdim=True) / insidef.sum(
         dim=(2, 3), keepdim=True
     ).clamp_min(1.0)
-    fit = torch.maximum(fit, 0.05 * mean.clamp_min(1e-4))
+    return torch.maximum(fit, 0.05 * mean.clamp_min(1e-4))
+
+
+def delit_ratio(
+    image: Float[Tensor, "B 3 H W"],
+    mask: Float[Tensor, "B 1 H W"],
+    normals: Float[Tensor, "B 3 H W"],
+    diffuse_target: Float[Tensor, "B 3 H W"],
+) -> Float[Tensor, "B 3 H W"]:
+    """`log(diffuse_target) - log(L_input(n))` / 4, clipped to [-1, 1], zero outside the mask.
+
+    `L_input` is `input_radiance_fit`: the input's lighting x albedo as a function of the normal.
+
+    Args:
+        image: the input in display sRGB, [0, 1], on white.
+        mask: its alpha.
+        normals: camera-frame unit normals.
+        diffuse_target: irradiance / pi of the target light at each pixel (linear radiance of a white
+            Lambertian surface, `diffuse_radiance`).
+    """
+    fit = input_radiance_fit(image, mask, normals)
     ratio = torch.log(diffuse_target.float() + _RATIO_EPS) - torch.log(fit + _RATIO_EPS)
-    return (ratio / _RATIO_RANGE).clamp(-1.0, 1.0) * insidef
+    return (ratio / _RATIO_RANGE).clamp(-1.0, 1.0) * (mask > 0.5).float()
+
+
+def diffuse_radiance(
+    normals: Float[Tensor, "B 3 H W"],
+    ldr: Float[Tensor, "B 3 S S"],
+    hdr: Float[Tensor, "B 3 S S"],
+) -> Float[Tensor, "B 3 H W"]:
+    """Linear radiance of a white Lambertian surface (irradiance / pi) with camera-frame `normals`
+    under the lighting of the camera-frame maps E_L / E_H: the hints' diffuse channel before tone
+    mapping. No visibility: a facet is lit by its whole hemisphere, shadows and all."""
+    maps = prefiltered_maps(radiance_from_maps(ldr, hdr).to(normals.device))
+    return _lookup(maps[:, :3], normals)
 
 
 def relighting_hints(

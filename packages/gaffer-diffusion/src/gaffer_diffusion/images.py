@@ -3,6 +3,8 @@
 - Reading: `load_rgba_on_white` is the one reader of rendered views for training, evaluation and the
   demo (one resize: bilinear, antialiased, colour and alpha together), with `crop_square` and
   `read_alpha` for the object-centred framing. `gaffer_diffusion.preprocess` re-exports all three.
+- Transfer: `srgb_to_linear` / `linear_to_srgb`, the sRGB curve (IEC 61966-2-1) on tensors, for
+  every place that moves display images into linear light and back (hints, exposure augmentation).
 - Quantising: `quantize_8bit` snaps float images to the 8-bit grid (as a PNG round trip would) and
   `to_uint8` turns a `[C, H, W]` tensor into the `[H, W, C]` uint8 array a PNG holds; both are
   `gaffer_envmap.writers`' one rounding rule (nearest level, ties to even), which also writes every
@@ -19,6 +21,24 @@ from PIL import Image
 from torch import Tensor
 
 from gaffer_envmap.writers import quantize, quantize_float
+
+
+def srgb_to_linear(x: Tensor) -> Tensor:
+    """Display sRGB in [0, 1] (clipped) to linear light, the piecewise sRGB curve.
+
+    Example:
+        >>> import torch
+        >>> round(float(srgb_to_linear(torch.tensor(0.5))), 4)
+        0.214
+    """
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(x: Tensor) -> Tensor:
+    """Linear light (clipped to [0, 1]) to display sRGB, the inverse of `srgb_to_linear`."""
+    x = x.clamp(0.0, 1.0)
+    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055)
 
 
 def quantize_8bit(images: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B 3 H W"]:

@@ -23,22 +23,14 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from gaffer_diffusion.images import linear_to_srgb, srgb_to_linear
+
 __all__ = ["CLIPPED_LEVEL", "exposure_gains", "reexpose_on_white"]
 
 CLIPPED_LEVEL = 254.5 / 255.0
 """An 8-bit sRGB value at or above this is taken as clipped by the render."""
 
 _ALPHA_MIN = 1e-3
-
-
-def _srgb_to_linear(c: Tensor) -> Tensor:
-    c = c.clamp(0.0, 1.0)
-    return torch.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def _linear_to_srgb(x: Tensor) -> Tensor:
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x ** (1 / 2.4) - 0.055)
 
 
 def _object_colour(
@@ -93,5 +85,5 @@ def reexpose_on_white(
     if not bool(torch.isfinite(gains).all() and (gains > 0).all()):
         raise ValueError(f"exposure gains {gains.tolist()}; need finite > 0")
     rgb = _object_colour(image_on_white, alpha)
-    out = _linear_to_srgb(_srgb_to_linear(rgb) * gains.to(rgb.dtype)[:, None, None])
+    out = linear_to_srgb(srgb_to_linear(rgb) * gains.to(rgb.dtype)[:, None, None])
     return (out * alpha + (1.0 - alpha)).clamp(0.0, 1.0)
