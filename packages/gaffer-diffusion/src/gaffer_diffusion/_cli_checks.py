@@ -156,6 +156,23 @@ def int_range(flag: str, value: int | None, lo: int, hi: int, fix: str = "") -> 
         raise ConfigError(f"`{flag}` is {value}; expected an integer in [{lo}, {hi}]{tail}.")
 
 
+def channel_widths(
+    flag: str, text: str | None, levels: tuple[int, int] = (2, 6)
+) -> tuple[int, ...] | None:
+    """Comma-separated positive channel counts, `levels[0]` to `levels[1]` of them, each a multiple
+    of 8 (the group norms' groups); None passes (the default applies)."""
+    if text is None:
+        return None
+    fix = f"pass {levels[0]} to {levels[1]} comma-separated multiples of 8, e.g. 16,32,64,96"
+    try:
+        widths = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"`{flag}` is {text!r}; {fix}.") from None
+    if not levels[0] <= len(widths) <= levels[1] or any(w <= 0 or w % 8 for w in widths):
+        raise ConfigError(f"`{flag}` is {text!r}; {fix}.")
+    return widths
+
+
 def finite(
     flag: str,
     value: float | None,

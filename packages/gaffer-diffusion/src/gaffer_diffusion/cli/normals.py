@@ -106,6 +106,12 @@ def _train_normals(args: argparse.Namespace) -> int:
         checks.need_dir("--data", data, "a gaffer-data render folder (with normal passes)")
     if args.init is not None:
         checks.need_dir("--init", args.init, "an estimator folder (gaffer_normals.json, unet/)")
+    widths = checks.channel_widths("--widths", args.widths)
+    if widths is not None and args.init is not None:
+        raise ConfigError(
+            "`--widths` sets the shapes of a new estimator, `--init` keeps those of the one it "
+            "continues: pass one of them."
+        )
     checks.finite("--lr", args.lr, lo=1e-7, hi=1.0)
     if args.val is not None:
         checks.need_dir("--val", args.val, "a gaffer-data render folder (with normal passes)")
@@ -137,7 +143,11 @@ def _train_normals(args: argparse.Namespace) -> int:
     train = concat_views([load_geometry_views(data) for data in args.data])
     print(f"read {train.images.shape[0]} training views in {time.perf_counter() - t0:.0f} s")
     config = NormalTrainConfig(
-        estimator=NormalEstimatorConfig() if init is None else init.config,
+        estimator=init.config
+        if init is not None
+        else NormalEstimatorConfig()
+        if widths is None
+        else NormalEstimatorConfig(block_out_channels=widths),
         max_seconds=args.minutes * 60.0,
         max_steps=args.steps,
         lr=args.lr,

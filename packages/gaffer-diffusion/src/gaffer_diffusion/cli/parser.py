@@ -455,6 +455,11 @@ def _add_normals_commands(sub: Any) -> None:
         help="an estimator folder to continue from (its shapes are kept); default: from scratch",
     )
     tn.add_argument(
+        "--widths",
+        help="channels of the UNet's levels when training from scratch, comma-separated (default "
+        "16,32,64,96, gaffer-normals' own); not with --init, whose shapes are kept",
+    )
+    tn.add_argument(
         "--lr", type=float, default=2e-3, help="peak learning rate (2e-3; less to fine-tune)"
     )
     tn.add_argument("--val", type=Path, help="held-out renders: angular error vs the dome")
