@@ -142,12 +142,14 @@ def _train_normals(args: argparse.Namespace) -> int:
     init = None if args.init is None else load_normal_estimator(args.init)
     train = concat_views([load_geometry_views(data) for data in args.data])
     print(f"read {train.images.shape[0]} training views in {time.perf_counter() - t0:.0f} s")
+    if init is not None:
+        shapes = init.config  # continuing keeps the estimator's shapes
+    elif widths is not None:
+        shapes = NormalEstimatorConfig(block_out_channels=widths)
+    else:
+        shapes = NormalEstimatorConfig()
     config = NormalTrainConfig(
-        estimator=init.config
-        if init is not None
-        else NormalEstimatorConfig()
-        if widths is None
-        else NormalEstimatorConfig(block_out_channels=widths),
+        estimator=shapes,
         max_seconds=args.minutes * 60.0,
         max_steps=args.steps,
         lr=args.lr,
