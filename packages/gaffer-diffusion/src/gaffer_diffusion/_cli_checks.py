@@ -163,13 +163,17 @@ def channel_widths(
     of 8 (the group norms' groups); None passes (the default applies)."""
     if text is None:
         return None
-    fix = f"pass {levels[0]} to {levels[1]} comma-separated multiples of 8, e.g. 16,32,64,96"
-    try:
-        widths = tuple(int(v) for v in text.split(","))
-    except ValueError:
-        raise ConfigError(f"`{flag}` is {text!r}; {fix}.") from None
-    if not levels[0] <= len(widths) <= levels[1] or any(w <= 0 or w % 8 for w in widths):
-        raise ConfigError(f"`{flag}` is {text!r}; {fix}.")
+    parts = text.split(",")
+    widths = tuple(int(v) for v in parts if v.strip().isdigit())
+    if (
+        len(widths) != len(parts)
+        or not levels[0] <= len(widths) <= levels[1]
+        or any(w <= 0 or w % 8 for w in widths)
+    ):
+        raise ConfigError(
+            f"`{flag}` is {text!r}; pass {levels[0]} to {levels[1]} comma-separated multiples of 8, "
+            "e.g. 16,32,64,96."
+        )
     return widths
 
 
