@@ -4,7 +4,8 @@
   demo (one resize: bilinear, antialiased, colour and alpha together), with `crop_square` and
   `read_alpha` for the object-centred framing. `gaffer_diffusion.preprocess` re-exports all three.
 - Transfer: `srgb_to_linear` / `linear_to_srgb`, the sRGB curve (IEC 61966-2-1) on tensors, for
-  every place that moves display images into linear light and back (hints, exposure augmentation).
+  every place that moves display images into linear light and back (hints, exposure augmentation,
+  the log-linear residual target).
 - Quantising: `quantize_8bit` snaps float images to the 8-bit grid (as a PNG round trip would) and
   `to_uint8` turns a `[C, H, W]` tensor into the `[H, W, C]` uint8 array a PNG holds; both are
   `gaffer_envmap.writers`' one rounding rule (nearest level, ties to even), which also writes every

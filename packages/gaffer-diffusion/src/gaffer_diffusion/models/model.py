@@ -12,6 +12,7 @@ from torch import Tensor
 from transformers import CLIPVisionModelWithProjection
 
 from gaffer_diffusion.configs import ModelConfig
+from gaffer_diffusion.images import linear_to_srgb, srgb_to_linear
 from gaffer_diffusion.models.pixel import PixelAutoencoder, PixelPosterior
 
 
@@ -92,15 +93,13 @@ black pixels and damps the noise of dark ones (sRGB 0.15 is linear 0.02)."""
 
 def _log_linear(pixels: Float[Tensor, "N 4 h w"]) -> Float[Tensor, "N 4 h w"]:
     """log(linear + eps) of pixel-space latents in [-1, 1] (display sRGB, channels R, G, B, luma)."""
-    x = ((pixels.float() + 1.0) * 0.5).clamp(0.0, 1.0)
-    lin = torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    lin = srgb_to_linear((pixels.float() + 1.0) * 0.5)
     return torch.log(lin + LOG_LINEAR_EPS).to(pixels.dtype)
 
 
 def _from_log_linear(log_lin: Float[Tensor, "N 4 h w"]) -> Float[Tensor, "N 4 h w"]:
     """The inverse of `_log_linear` (clipped to the display range)."""
-    lin = (torch.exp(log_lin.float()) - LOG_LINEAR_EPS).clamp(0.0, 1.0)
-    x = torch.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin.pow(1.0 / 2.4) - 0.055)
+    x = linear_to_srgb(torch.exp(log_lin.float()) - LOG_LINEAR_EPS)
     return (x * 2.0 - 1.0).to(log_lin.dtype)
 
 
