@@ -430,3 +430,20 @@ def test_train_normal_estimator_continues_from_an_estimator() -> None:
     other = NormalTrainConfig(estimator=NormalEstimatorConfig(resolution=32), max_steps=1)
     with pytest.raises(ConfigError, match="same shapes"):
         train_normal_estimator(views, other, init=init)
+
+
+def test_train_normal_estimator_gives_back_the_callers_thread_count() -> None:
+    from gaffer_diffusion.geometry.estimator import NormalEstimatorConfig
+    from gaffer_diffusion.training.normals import NormalTrainConfig, train_normal_estimator
+
+    views = _geometry_views(2, lit=2)
+    before = torch.get_num_threads()
+    other = 1 if before != 1 else 2
+    config = NormalTrainConfig(
+        estimator=NormalEstimatorConfig(resolution=32, block_out_channels=(8, 8, 8, 8)),
+        max_steps=1,
+        batch_size=2,
+        threads=other,
+    )
+    train_normal_estimator(views, config)
+    assert torch.get_num_threads() == before

@@ -220,8 +220,20 @@ def train_normal_estimator(
             f"the estimator to continue from has shapes {init.config}, the config asks for "
             f"{config.estimator}; pass the same shapes."
         )
+    # the caller's thread count comes back afterwards: a forward pass's float sums depend on it,
+    # so leaving it changed would make the caller's own results differ after training
+    threads_before = torch.get_num_threads()
     if config.threads > 0:
         torch.set_num_threads(config.threads)
+    try:
+        return _train(train, config, init)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(
+    train: GeometryViews, config: NormalTrainConfig, init: NormalEstimator | None
+) -> tuple[NormalEstimator, dict[str, float]]:
     torch.manual_seed(config.seed)
     gen = torch.Generator().manual_seed(config.seed)
     est = NormalEstimator(config.estimator)
